@@ -1,0 +1,199 @@
+"""Linearisation of the closed loop and the stability map KP_crit(c1, Ct).
+
+Everything here differentiates the one right-hand side (`plant_rhs`) numerically; no equation is
+re-derived. The pump pulsation is a forcing, not part of the autonomous loop, so the operating
+point and the Jacobian use the mean supply pressure (pulse_amp = 0).
+
+LuGre friction makes the small-signal picture depend on the motion, so two linearisations are
+offered:
+
+* ``friction="stick"``: at rest with relaxed bristles (z = 0). The bristles act as a spring
+  sigma0 = 4.4e9 N/m with damping sigma1 + sigma2 in parallel with the load: the *local*
+  stability of the resting equilibrium (small disturbances, below a few micrometres).
+* ``friction="sliding"``: at the onset of sliding, bristles saturated (z = g(0)/sigma0, v -> 0+;
+  the derivative in v is one-sided). The bristle spring drops out and the friction adds only
+  sigma2 of damping: the loop that a large disturbance (the paper's 1 mm start) sees.
+
+The stick loop is much stiffer, so KP_crit(stick) > KP_crit(sliding). Between the two the resting
+equilibrium is locally stable but a large disturbance grows into a limit cycle (hard excitation).
+
+The operating point holds the PID integral term frozen at its initial value by default: with the
+paper's KI = 0.001 V/(m s) it moves by microvolts over a simulated second, so the plant sits at
+the proportional-only equilibrium (an offset where the cylinder leaks). ``integral="settled"``
+takes the true equilibrium x = xd instead (the one a large KI reaches).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from millvib_env.params import MillParams, PIDGains
+from millvib_env.plant.integrate import state_scale
+from millvib_env.plant.kernel import rhs_vector
+from millvib_env.plant.model import IPL, IUI, IV, IX, IZ, NY, drive_vector, pack
+
+__all__ = ["OperatingPoint", "operating_point", "jacobian", "spectral_abscissa", "critical_kp",
+           "stability_map"]
+
+Friction = Literal["stick", "sliding"]
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    y: np.ndarray  # (x, v, pL, z, uI)
+    xd: float
+    friction: str
+    integral: str
+
+    @property
+    def x(self) -> float:
+        return float(self.y[IX])
+
+    @property
+    def pL(self) -> float:
+        return float(self.y[IPL])
+
+
+def _rhs(params: MillParams, gains: PIDGains, xd: float):
+    p = pack(params.replace(pulse_amp=0.0))
+    c = drive_vector(gains, xd=xd)
+    return lambda y: rhs_vector(0.0, y, p, c)
+
+
+def _balanced_pressure(f, y: np.ndarray) -> float:
+    """pL that zeroes the acceleration at state y (the force balance is linear in pL)."""
+    y0, y1 = y.copy(), y.copy()
+    y0[IPL], y1[IPL] = 0.0, 1.0e7
+    a0, a1 = f(y0)[IV], f(y1)[IV]
+    return -a0 * 1.0e7 / (a1 - a0)
+
+
+def _bracket_root(fun, center: float, lo: float, hi: float) -> float:
+    """Root of fun in (lo, hi), bracketed by stepping out from `center` on a log scale."""
+    f0 = fun(center)
+    if f0 == 0.0:
+        return center
+    for step in np.logspace(-9, 0, 46) * (hi - lo):
+        for cand in (center - step, center + step):
+            if lo < cand < hi and np.sign(fun(cand)) != np.sign(f0):
+                a, b = sorted((center, cand))
+                return optimize.brentq(fun, a, b, xtol=1e-15, rtol=1e-13, maxiter=200)
+    raise RuntimeError("no operating point found: the valve cannot hold the load against the leakage")
+
+
+def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
+                    integral: Literal["frozen", "settled"] = "frozen", uI: float = 0.0) -> OperatingPoint:
+    """Equilibrium at rest (v = 0) of the loop with mean supply pressure.
+
+    The force balance fixes pL for a given x; the flow balance (dpL/dt = 0) is then a scalar root:
+    in x with the integral term frozen at `uI` (``integral="frozen"``), or in uI with x = xd
+    (``"settled"``).
+    """
+    if friction not in ("stick", "sliding"):
+        raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
+    if integral not in ("frozen", "settled"):
+        raise ValueError(f"integral = {integral!r} is invalid: use 'frozen' or 'settled'")
+    f = _rhs(params, gains, xd)
+    y = np.array([xd, 0.0, 0.0, 0.0 if friction == "stick" else params.fs / params.sigma0, uI])
+
+    def at(value: float) -> np.ndarray:
+        yy = y.copy()
+        yy[IX if integral == "frozen" else IUI] = value
+        yy[IPL] = _balanced_pressure(f, yy)
+        return yy
+
+    def flow_residual(value: float) -> float:
+        return f(at(value))[IPL]
+
+    if integral == "frozen":
+        root = _bracket_root(flow_residual, xd, -params.L1, params.L - params.L1)
+    else:
+        root = _bracket_root(flow_residual, 0.0, -1e6, 1e6)
+    return OperatingPoint(y=at(root), xd=xd, friction=friction, integral=integral)
+
+
+def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndarray:
+    """Numerical Jacobian of the loop at `op` (central differences; one-sided in v when sliding).
+
+    Returns the matrix over (x, v, pL) plus uI when the integral is settled and KI > 0. The
+    bristle state z is eliminated: when stuck it moves with x (folded into x), when sliding its
+    row vanishes (saturated bristles).
+    """
+    f = _rhs(params, gains, op.xd)
+    y0 = op.y
+    scale = state_scale(params)
+    J = np.zeros((NY, NY))
+    f0 = f(y0)
+    for j in range(NY):
+        d = 1e-6 * scale[j]
+        if op.friction == "sliding" and j == IV:
+            yp = y0.copy()
+            yp[j] += d
+            J[:, j] = (f(yp) - f0) / d
+        else:
+            yp, ym = y0.copy(), y0.copy()
+            yp[j] += d
+            ym[j] -= d
+            J[:, j] = (f(yp) - f(ym)) / (2 * d)
+    if op.friction == "stick":
+        # stuck bristles move with the piston (dz/dt = dx/dt = v), so z - x is conserved: fold z
+        # into x (the bristle spring then acts on x) and drop the structural zero eigenvalue
+        J[:, IX] += J[:, IZ]
+    keep = [i for i in range(NY)
+            if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))]
+    return J[np.ix_(keep, keep)]
+
+
+def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
+                      integral: str = "frozen") -> float:
+    """Largest real part of the loop's eigenvalues (1/s): < 0 stable, > 0 unstable."""
+    op = operating_point(params, gains, xd, friction=friction, integral=integral)
+    return float(np.max(np.linalg.eigvals(jacobian(params, gains, op)).real))
+
+
+def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, friction: Friction = "stick",
+                xd: float = 0.0, kp_range: tuple[float, float] = (1e3, 1e10)) -> float:
+    """KP (V/m) at which the loop's least-damped eigenvalue crosses into the right half-plane.
+
+    Returns inf if the loop is stable over all of `kp_range`, 0 if unstable at its low end.
+    """
+    def g(log_kp: float) -> float:
+        try:
+            s = spectral_abscissa(params, PIDGains(10.0**log_kp, ki, kd), xd, friction=friction)
+        except RuntimeError:
+            return 1.0  # no equilibrium: count as unstable
+        return s
+
+    lo, hi = math.log10(kp_range[0]), math.log10(kp_range[1])
+    if g(lo) > 0:
+        return 0.0
+    if g(hi) < 0:
+        return math.inf
+    # the abscissa can stay near zero for small KP (slow integrator pole): bracket by a scan
+    grid = np.linspace(lo, hi, 28)
+    vals = [g(v) for v in grid]
+    for a, b, va, vb in zip(grid[:-1], grid[1:], vals[:-1], vals[1:]):
+        if va < 0 <= vb:
+            return 10.0 ** optimize.brentq(g, a, b, xtol=1e-6)
+    return math.inf
+
+
+def stability_map(c1_values: Sequence[float], Ct_values: Sequence[float], *, base: MillParams | None = None,
+                  ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
+                  progress: bool = False) -> np.ndarray:
+    """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values))."""
+    base = base or MillParams()
+    out = np.empty((len(c1_values), len(Ct_values)))
+    cells = [(i, j) for i in range(len(c1_values)) for j in range(len(Ct_values))]
+    if progress:
+        from tqdm.auto import tqdm
+        cells = tqdm(cells, desc=f"stability map ({friction})", unit="cell")
+    for i, j in cells:
+        out[i, j] = critical_kp(base.replace(c1=float(c1_values[i]), Ct=float(Ct_values[j])), ki, kd,
+                                friction=friction)
+    return out

@@ -1,0 +1,301 @@
+"""The paper's three one-at-a-time studies and their reproduction (`millvib reproduce`).
+
+Each study varies one quantity from the nominal plant (Table 1, KP = 1e5, KI = 0.001, KD = 0),
+starts from X00 = [1 mm, 0, 0] with xd = 0, and scores each case by its vibration severity:
+
+* c1 = 2.25e6, 2.25e5, 1.25e5 N s/m (paper Figs. 4, 5)
+* Ct = 5e-16, 5e-10, 5e-9 m^3/(s Pa) (Figs. 6, 7)
+* KP = 1e5, 3.5e6, 3.9e6 V/m (Figs. 8, 9)
+
+`reproduce` simulates them, measures severity, tracking error and the kind of motion
+(`classify_motion`), draws the analogues of Figs. 4-9 plus two maps that show where in parameter
+space the states the paper names (periodic, quasi-periodic) appear, and writes the numbers as CSV.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from millvib_env._paths import atomic_path, write_text_atomic
+from millvib_env.analysis.dynamics import classify_motion
+from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
+from millvib_env.plant.integrate import SimResult, simulate_batch
+from millvib_env.severity import iso_zone
+
+__all__ = ["PaperCase", "PaperStudy", "PAPER_STUDIES", "CaseResult", "run_studies", "reproduce"]
+
+
+@dataclass(frozen=True)
+class PaperCase:
+    label: str
+    value: float
+    params: MillParams
+    gains: PIDGains
+
+
+@dataclass(frozen=True)
+class PaperStudy:
+    key: str
+    symbol: str
+    unit: str
+    figures: str
+    claim_direction: str
+    claim_kind: str
+    cases: tuple[PaperCase, ...]
+
+
+def _study(key: str, symbol: str, unit: str, values, figures: str, direction: str, kind: str) -> PaperStudy:
+    cases = []
+    for v in values:
+        if key == "KP":
+            params, gains = MillParams(), PIDGains(v, PAPER_GAINS.ki, PAPER_GAINS.kd)
+        else:
+            params, gains = MillParams().replace(**{key: v}), PAPER_GAINS
+        cases.append(PaperCase(f"{symbol} = {v:.3g}", v, params, gains))
+    return PaperStudy(key, symbol, unit, figures, direction, kind, tuple(cases))
+
+
+PAPER_STUDIES: tuple[PaperStudy, ...] = (
+    _study("c1", "c1", "N s/m", (2.25e6, 2.25e5, 1.25e5), "Figs. 4-5",
+           "severity rises as the damping c1 falls",
+           "stable -> periodic vibration as c1 falls"),
+    _study("Ct", "Ct", "m^3/(s Pa)", (5.0e-16, 5.0e-10, 5.0e-9), "Figs. 6-7",
+           "severity rises with the leakage Ct",
+           "convergent -> multi-period vibration as Ct grows"),
+    _study("KP", "KP", "V/m", (1.0e5, 3.5e6, 3.9e6), "Figs. 8-9",
+           "severity rises with the gain KP",
+           "convergent -> periodic -> quasi-periodic as KP grows"),
+)
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    study: str
+    label: str
+    value: float
+    severity_mm_s: float
+    iso_zone: str
+    motion: str
+    amplitude_um: float
+    frequency_hz: float
+    tracking_rms_um: float
+    diverged: bool
+
+    def row(self) -> dict:
+        return {"study": self.study, "case": self.label, "value": f"{self.value:.6g}",
+                "severity_mm_s": f"{self.severity_mm_s:.4f}", "iso_zone": self.iso_zone,
+                "motion": self.motion, "amplitude_um": f"{self.amplitude_um:.4g}",
+                "frequency_hz": f"{self.frequency_hz:.1f}", "tracking_rms_um": f"{self.tracking_rms_um:.2f}",
+                "diverged": self.diverged}
+
+
+def run_studies(t_end: float = 1.0, method: str = "fast") -> tuple[list[CaseResult], dict[str, list[SimResult]]]:
+    """Simulate the nine cases; returns per-case numbers and the runs, keyed by study."""
+    runs: dict[str, list[SimResult]] = {}
+    results: list[CaseResult] = []
+    for study in PAPER_STUDIES:
+        batch = simulate_batch([c.params for c in study.cases], [c.gains for c in study.cases], t_end,
+                               method=method)
+        runs[study.key] = list(batch)
+        for case, run in zip(study.cases, runs[study.key]):
+            motion = classify_motion(run)
+            sev = math.nan if run.diverged else run.severity()
+            results.append(CaseResult(study.key, case.label, case.value, sev,
+                                      "-" if run.diverged else iso_zone(sev), motion.label,
+                                      motion.amplitude_m * 1e6, motion.frequency_hz,
+                                      run.tracking_rms() * 1e6, run.diverged))
+    return results, runs
+
+
+def _save(fig, path: Path) -> Path:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip("."))
+    return path
+
+
+def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: float = 0.06) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    for case, run in zip(study.cases, runs):
+        k = run.t <= zoom_s
+        axes[0].plot(run.t[k] * 1e3, run.x[k] * 1e3, label=case.label)
+        axes[1].plot(run.t * 1e3, run.x * 1e3, lw=0.8, label=case.label)
+        axes[2].plot(run.x * 1e3, run.v * 1e3, lw=0.6, label=case.label)
+    axes[0].set(xlabel="t (ms)", ylabel="x (mm)", title=f"(a) displacement, first {zoom_s * 1e3:.0f} ms")
+    axes[1].set(xlabel="t (ms)", ylabel="x (mm)", title="(b) displacement, whole run")
+    axes[2].set(xlabel="x (mm)", ylabel="v (mm/s)", title="(c) phase portrait (displacement-velocity)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"Study of {study.symbol} (paper {study.figures.split('-')[0]}): "
+                 "KP = %.3g, KI = %.3g, x0 = 1 mm" % (runs[0].gains.kp, runs[0].gains.ki))
+    fig.tight_layout()
+    path = _save(fig, out / f"study_{study.key}_time_phase.png")
+    plt.close(fig)
+    return path
+
+
+def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    labels = [r.label for r in results]
+    vals = [r.severity_mm_s for r in results]
+    bars = ax.bar(range(len(vals)), vals, color="tab:blue")
+    for bar, r in zip(bars, results):
+        ax.annotate(f"{r.severity_mm_s:.3g}\n{r.motion}", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
+                    ha="center", va="bottom", fontsize=8)
+    ax.set_xticks(range(len(vals)), labels, fontsize=8)
+    ax.set_ylabel("vibration severity (mm/s RMS, 10-1000 Hz)")
+    if max(vals) / max(min(vals), 1e-9) > 50:
+        ax.set_yscale("log")
+    ax.set_title(f"Severity vs {study.symbol} (paper {study.figures.split('-')[-1].strip()})"
+                 if "-" in study.figures else study.symbol)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    path = _save(fig, out / f"study_{study.key}_severity.png")
+    plt.close(fig)
+    return path
+
+
+def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -> tuple[Path, Path]:
+    """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    c1s = np.geomspace(1.25e5, 2.25e6, n_c1)
+    kps = np.geomspace(1e4, 1e7, n_kp)
+    params = [MillParams(c1=c) for c in c1s for _ in kps]
+    gains = [PIDGains(k, PAPER_GAINS.ki) for _ in c1s for k in kps]
+    batch = simulate_batch(params, gains, t_end)
+    kinds = ["decay", "periodic", "quasi-periodic", "diverged"]
+    grid = np.zeros((n_c1, n_kp), dtype=int)
+    sev = np.full((n_c1, n_kp), np.nan)
+    rows = []
+    for idx, run in enumerate(batch):
+        i, j = divmod(idx, n_kp)
+        m = classify_motion(run)
+        grid[i, j] = kinds.index(m.kind)
+        sev[i, j] = np.nan if run.diverged else run.severity()
+        rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
+                     "severity_mm_s": f"{sev[i, j]:.4f}"})
+    fig, ax = plt.subplots(figsize=(7, 5))
+    cmap = ListedColormap(["#cfe8cf", "#f6c177", "#e06c75", "#555555"])
+    ax.pcolormesh(kps, c1s, grid, cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
+    ax.set(xscale="log", yscale="log", xlabel="KP (V/m)", ylabel="c1 (N s/m)",
+           title="Motion after a 1 mm start (Ct = 5e-16, KI = 0.001)")
+    for k, color in zip(kinds, cmap.colors):
+        ax.scatter([], [], marker="s", color=color, label=k)
+    for study in PAPER_STUDIES:
+        for case in study.cases:
+            ax.scatter(case.gains.kp, case.params.c1, marker="x", color="k")
+    ax.scatter([], [], marker="x", color="k", label="paper's cases")
+    from millvib_env.analysis.linear import critical_kp
+
+    c1_fine = np.geomspace(c1s[0], c1s[-1], 40)
+    for friction, style in (("stick", "-"), ("sliding", "--")):
+        crit = [critical_kp(MillParams(c1=c), PAPER_GAINS.ki, friction=friction) for c in c1_fine]
+        ax.plot(crit, c1_fine, "k" + style, lw=1.2, label=f"linear KP_crit ({friction})")
+    ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    png = _save(fig, out / "motion_map_c1_kp.png")
+    plt.close(fig)
+    csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
+    return png, csv_path
+
+
+def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool) -> tuple[Path, Path]:
+    """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
+    import matplotlib.pyplot as plt
+
+    from millvib_env.analysis.linear import stability_map
+
+    c1s = np.geomspace(1.25e5, 2.25e6, n_c1)
+    cts = np.geomspace(5e-16, 5e-9, n_ct)
+    stick = stability_map(c1s, cts, friction="stick", progress=progress)
+    slide = stability_map(c1s, cts, friction="sliding", progress=progress)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    picks_ct = [0, n_ct // 2, n_ct - 1]
+    picks_c1 = [0, n_c1 // 2, n_c1 - 1]
+    for j, color in zip(picks_ct, ("C0", "C1", "C2")):
+        axes[0].plot(c1s, stick[:, j], "-", color=color, label=f"stick, Ct = {cts[j]:.1e}")
+        axes[0].plot(c1s, slide[:, j], "--", color=color, label=f"sliding, Ct = {cts[j]:.1e}")
+    for i, color in zip(picks_c1, ("C0", "C1", "C2")):
+        axes[1].plot(cts, stick[i, :], "-", color=color, label=f"stick, c1 = {c1s[i]:.2e}")
+        axes[1].plot(cts, slide[i, :], "--", color=color, label=f"sliding, c1 = {c1s[i]:.2e}")
+    for ax, xlabel in zip(axes, ("c1 (N s/m)", "Ct (m^3/(s Pa))")):
+        for kp in (1e5, 3.5e6, 3.9e6):
+            ax.axhline(kp, color="gray", lw=0.8, ls=":")
+            ax.annotate(f"paper KP = {kp:.2g}", (0.01, kp),
+                        xycoords=("axes fraction", "data"), fontsize=7, color="gray", va="bottom")
+        ax.set(xscale="log", yscale="log", xlabel=xlabel, ylabel="critical KP (V/m)")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    axes[0].set_title("Critical KP vs damping (KI = 0.001)")
+    axes[1].set_title("Critical KP vs leakage (KI = 0.001)")
+    fig.tight_layout()
+    png = _save(fig, out / "stability_map.png")
+    plt.close(fig)
+    rows = [{"c1": f"{c1s[i]:.6g}", "Ct": f"{cts[j]:.6g}", "kp_crit_stick": f"{stick[i, j]:.6g}",
+             "kp_crit_sliding": f"{slide[i, j]:.6g}"} for i in range(n_c1) for j in range(n_ct)]
+    return png, _write_csv(out / "stability_map.csv", rows)
+
+
+def _write_csv(path: Path, rows: list[dict]) -> Path:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(rows)
+    return write_text_atomic(path, buf.getvalue())
+
+
+def format_table(results: list[CaseResult]) -> str:
+    head = "| study | case | severity (mm/s) | ISO zone | motion (tail) | amplitude (um) | f (Hz) | tracking RMS (um) |"
+    lines = [head, "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        lines.append(f"| {r.study} | {r.label} | {r.severity_mm_s:.3f} | {r.iso_zone} | {r.motion} | "
+                     f"{r.amplitude_um:.3g} | {r.frequency_hz:.0f} | {r.tracking_rms_um:.1f} |")
+    return "\n".join(lines)
+
+
+def claims(results: list[CaseResult]) -> list[dict]:
+    """Per study: does the measured severity rise along the paper's direction, and which kinds."""
+    out = []
+    for study in PAPER_STUDIES:
+        rs = [r for r in results if r.study == study.key]
+        sev = [r.severity_mm_s for r in rs]
+        rising = all(b > a for a, b in zip(sev, sev[1:]))
+        out.append({"study": study.key, "direction_claim": study.claim_direction,
+                    "direction_reproduced": bool(rising), "kind_claim": study.claim_kind,
+                    "kinds_measured": " -> ".join(r.motion for r in rs)})
+    return out
+
+
+def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", maps: bool = True,
+              map_resolution: int = 14, progress: bool = True) -> dict:
+    """Run the studies, write figures (PNG) and numbers (CSV, JSON) into `out_dir`."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results, runs = run_studies(t_end, method)
+    files = [_write_csv(out / "paper_cases.csv", [r.row() for r in results])]
+    for study in PAPER_STUDIES:
+        files.append(_plot_study(study, runs[study.key], out))
+        files.append(_plot_severity(study, [r for r in results if r.study == study.key], out))
+    if maps:
+        files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress))
+        files.extend(_stability_figure(out, map_resolution, map_resolution, progress))
+    summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
+               "cases": [r.row() for r in results]}
+    files.append(write_text_atomic(out / "summary.json", json.dumps(summary, indent=2)))
+    summary["table"] = format_table(results)
+    summary["files"] = [str(f) for f in files]
+    return summary

@@ -1,0 +1,115 @@
+"""`millvib bench`: speed of the integrators (and, with the environments, of env stepping).
+
+Plant timings, all on the 10 kHz output grid, integration only (the auxiliary outputs are
+computed afterwards from the states, the same way for both methods):
+
+* wall time per simulated second of one plant for the reference (scipy LSODA at rtol 1e-6) and
+  the fast kernel, on the paper's nine cases, each the median of `repeats` runs;
+* the fast kernel's trajectory error against the reference at tight tolerance (rtol 1e-10), as a
+  fraction of the peak |x|;
+* batched throughput: 256 plants drawn log-uniformly over c1, Ct and KP (the unstable corner
+  included), in simulated plant-seconds per wall second, with all numba threads.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import statistics
+import time
+from typing import Callable
+
+import numpy as np
+
+from millvib_env._paths import write_text_atomic
+from millvib_env.analysis.paper import PAPER_STUDIES
+from millvib_env.params import MillParams, PIDGains
+from millvib_env.plant.integrate import simulate, simulate_batch
+
+__all__ = ["bench_plant", "random_plants", "format_plant_bench"]
+
+
+def random_plants(n: int, seed: int = 0, kp_range: tuple[float, float] = (1e4, 4e6)):
+    """n plants and PID gains log-uniform over c1 in [1.25e5, 2.25e6], Ct in [5e-16, 5e-9], KP."""
+    rng = np.random.default_rng(seed)
+    c1 = np.exp(rng.uniform(np.log(1.25e5), np.log(2.25e6), n))
+    ct = np.exp(rng.uniform(np.log(5e-16), np.log(5e-9), n))
+    kp = np.exp(rng.uniform(np.log(kp_range[0]), np.log(kp_range[1]), n))
+    return [MillParams(c1=a, Ct=b) for a, b in zip(c1, ct)], [PIDGains(k, 1e-3) for k in kp]
+
+
+def _median_wall(fn: Callable[[], float], repeats: int) -> float:
+    return statistics.median(fn() for _ in range(repeats))
+
+
+def bench_plant(*, t_end: float = 1.0, repeats: int = 3, batch_size: int = 256, batch_t_end: float = 1.0,
+                progress: bool = True) -> dict:
+    simulate(t_end=0.01)  # compile or load the kernels outside the timings
+    simulate(t_end=0.01, method="reference")
+    cases = [(c.label, c.params, c.gains) for s in PAPER_STUDIES for c in s.cases]
+    iterator = cases
+    if progress:
+        from tqdm.auto import tqdm
+        iterator = tqdm(cases, desc="bench: paper cases", unit="case")
+    rows = []
+    for label, params, gains in iterator:
+        ref_s = _median_wall(lambda: simulate(params, gains, t_end, method="reference", rtol=1e-6).info["wall_s"],
+                             repeats)
+        fast_s = _median_wall(lambda: simulate(params, gains, t_end).info["wall_s"], repeats)
+        tight = simulate(params, gains, t_end, method="reference", rtol=1e-10)
+        fast = simulate(params, gains, t_end)
+        err = float(np.max(np.abs(fast.x - tight.x)) / np.max(np.abs(tight.x)))
+        rows.append({"case": label, "reference_s_per_sim_s": ref_s / t_end, "fast_s_per_sim_s": fast_s / t_end,
+                     "speedup": ref_s / fast_s, "fast_error_of_peak": err, "fast_steps": fast.n_steps})
+    total_ref = sum(r["reference_s_per_sim_s"] for r in rows)
+    total_fast = sum(r["fast_s_per_sim_s"] for r in rows)
+
+    params, gains = random_plants(batch_size, seed=0)
+    simulate_batch(params[:2], gains[:2], 0.01)
+    start = time.perf_counter()
+    batch = simulate_batch(params, gains, batch_t_end)
+    wall = time.perf_counter() - start
+    stable_params, stable_gains = random_plants(batch_size, seed=1, kp_range=(1e4, 3e5))
+    start = time.perf_counter()
+    simulate_batch(stable_params, stable_gains, batch_t_end)
+    wall_stable = time.perf_counter() - start
+    import numba
+
+    return {
+        "machine": {"processor": platform.processor() or platform.machine(), "python": platform.python_version(),
+                    "numba_threads": numba.get_num_threads()},
+        "t_end_s": t_end,
+        "cases": rows,
+        "aggregate_speedup": total_ref / total_fast,
+        "median_speedup": statistics.median(r["speedup"] for r in rows),
+        "min_speedup": min(r["speedup"] for r in rows),
+        "max_fast_error_of_peak": max(r["fast_error_of_peak"] for r in rows),
+        "batch": {"plants": batch_size, "t_end_s": batch_t_end, "wall_s": wall,
+                  "plant_seconds_per_wall_second": batch_size * batch_t_end / wall,
+                  "diverged": int(batch.diverged.sum()),
+                  "stable_draws_plant_seconds_per_wall_second": batch_size * batch_t_end / wall_stable},
+    }
+
+
+def format_plant_bench(res: dict) -> str:
+    lines = [f"Integrators, wall time per simulated second of one plant (t_end = {res['t_end_s']} s, "
+             f"10 kHz output, median of repeats):",
+             "| case | reference LSODA rtol 1e-6 (ms) | fast (ms) | speed-up | fast error / peak |",
+             "|---|---|---|---|---|"]
+    for r in res["cases"]:
+        lines.append(f"| {r['case']} | {1e3 * r['reference_s_per_sim_s']:.2f} | {1e3 * r['fast_s_per_sim_s']:.3f} | "
+                     f"{r['speedup']:.0f}x | {r['fast_error_of_peak']:.1e} |")
+    lines.append(f"| **all nine (sum of times)** | | | **{res['aggregate_speedup']:.0f}x** "
+                 f"(median {res['median_speedup']:.0f}x, min {res['min_speedup']:.0f}x) | "
+                 f"max {res['max_fast_error_of_peak']:.1e} |")
+    b = res["batch"]
+    lines.append("")
+    lines.append(f"Batched fast kernel, {b['plants']} plants x {b['t_end_s']} s, {res['machine']['numba_threads']} "
+                 f"threads: {b['plant_seconds_per_wall_second']:.0f} plant-s per wall-s over random draws "
+                 f"(KP 1e4-4e6, c1, Ct log-uniform; {b['diverged']} diverged), "
+                 f"{b['stable_draws_plant_seconds_per_wall_second']:.0f} plant-s/s with KP <= 3e5 (no limit cycles).")
+    return "\n".join(lines)
+
+
+def save_json(res: dict, path: str) -> None:
+    write_text_atomic(path, json.dumps(res, indent=2))

@@ -1,0 +1,260 @@
+"""The `millvib` command: a thin layer over the library. `millvib <command> --help` explains each."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+DESCRIPTION = """\
+millvib: vertical vibration of a rolling mill's hydraulic screw-down system.
+
+A verified simulator of the paper's plant (servo valve, cylinder, oil compressibility and
+leakage, LuGre seal friction, 115.5 Hz pump pulsation, PID position loop), its vibration
+severity (ISO 10816, mm/s), Gymnasium environments and RL gain schedulers benchmarked against
+fixed-gain PIDs.
+
+commands:
+  simulate    one closed-loop run: severity, ISO zone, kind of motion, tracking error (--plot)
+  reproduce   the paper's three studies (Figs. 4-9 analogues), stability and motion maps
+  bench       integrator and environment speed (the README's throughput tables)
+  params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
+  scenarios   the named failure scenarios with the paper PID's measured outcome
+  train       train a PPO / SAC / RecurrentPPO agent from configs/agents/
+  benchmark   evaluate controllers on held-out plants and the scenarios
+
+examples:
+  millvib simulate --set c1=1.25e5 --kp 3.5e6 --plot run.png
+  millvib reproduce --out results/paper
+  millvib benchmark
+"""
+
+
+def _add_plant_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--preset", default="paper", help="plant preset in configs/plant/ or a YAML path (default: paper)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME=VALUE",
+                   help="override a plant parameter, e.g. --set c1=2.25e5 --set Ct=5e-9 (SI units; "
+                        "`millvib params` lists them)")
+    p.add_argument("--kp", type=float, default=1e5, help="proportional gain KP, V/m (default 1e5, the paper's)")
+    p.add_argument("--ki", type=float, default=1e-3, help="integral gain KI, V/(m s) (default 1e-3)")
+    p.add_argument("--kd", type=float, default=0.0, help="derivative gain KD, V s/m (default 0)")
+
+
+def _cmd_simulate(args) -> int:
+    from millvib_env.analysis.dynamics import classify_motion
+    from millvib_env.params import PIDGains, load_preset, parse_overrides
+    from millvib_env.plant.integrate import simulate
+
+    params = load_preset(args.preset).replace(**parse_overrides(args.overrides))
+    gains = PIDGains(args.kp, args.ki, args.kd)
+    run = simulate(params, gains, args.t_end, x0=args.x0, xd=args.xd, method=args.method)
+    motion = classify_motion(run)
+    out = {"diverged": run.diverged, "status": run.status, "t_end_s": args.t_end, "method": args.method,
+           "wall_s": run.info["wall_s"], "motion": motion.label}
+    if run.diverged:
+        out["t_diverged_s"] = run.t_diverged
+    else:
+        sev = run.severity()
+        out.update({"severity_mm_s": sev, "iso_zone": run.iso_zone(), "tracking_rms_um": run.tracking_rms() * 1e6,
+                    "tail_amplitude_um": motion.amplitude_m * 1e6, "tail_frequency_hz": motion.frequency_hz})
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        for k, v in out.items():
+            print(f"{k:>20}: {v:.6g}" if isinstance(v, float) else f"{k:>20}: {v}")
+    if args.plot:
+        _plot_run(run, Path(args.plot))
+        print(f"wrote {args.plot}")
+    if args.csv:
+        _write_run_csv(run, Path(args.csv))
+        print(f"wrote {args.csv}")
+    return 0
+
+
+def _plot_run(run, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from millvib_env._paths import atomic_path
+
+    fig, ax = plt.subplots(2, 2, figsize=(11, 6.5))
+    ax[0, 0].plot(run.t * 1e3, run.x * 1e3)
+    ax[0, 0].set(xlabel="t (ms)", ylabel="x (mm)", title="displacement")
+    ax[0, 1].plot(run.x * 1e3, run.v * 1e3, lw=0.7)
+    ax[0, 1].set(xlabel="x (mm)", ylabel="v (mm/s)", title="phase portrait")
+    ax[1, 0].plot(run.t * 1e3, run.pL / 1e6, label="pL")
+    ax[1, 0].plot(run.t * 1e3, run.ps / 1e6, lw=0.5, label="ps(t)")
+    ax[1, 0].set(xlabel="t (ms)", ylabel="MPa", title="chamber and supply pressure")
+    ax[1, 0].legend()
+    ax[1, 1].plot(run.t * 1e3, run.u)
+    ax[1, 1].set(xlabel="t (ms)", ylabel="u (V)", title="valve command")
+    for a in ax.flat:
+        a.grid(alpha=0.3)
+    p = run.params
+    title = f"c1={p.c1:.3g}, Ct={p.Ct:.3g}, KP={run.gains.kp:.3g}"
+    if not run.diverged:
+        title += f": severity {run.severity():.3g} mm/s (zone {run.iso_zone()})"
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+
+
+def _write_run_csv(run, path: Path) -> None:
+    import numpy as np
+
+    from millvib_env._paths import atomic_path
+
+    names = ["t", "x", "v", "a", "pL", "z", "uI", "u", "xv", "QL", "Ff", "ps", "xd"]
+    data = np.column_stack([getattr(run, n) for n in names])
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, data, delimiter=",", header=",".join(names), comments="")
+
+
+def _cmd_reproduce(args) -> int:
+    from millvib_env.analysis.paper import reproduce
+
+    summary = reproduce(args.out, t_end=args.t_end, method=args.method, maps=not args.no_maps,
+                        map_resolution=args.resolution, progress=not args.quiet)
+    print(summary["table"])
+    print()
+    for c in summary["claims"]:
+        verdict = "reproduced" if c["direction_reproduced"] else "NOT reproduced"
+        print(f"{c['study']}: '{c['direction_claim']}': {verdict}; kind claimed: {c['kind_claim']}; "
+              f"measured: {c['kinds_measured']}")
+    print(f"\nwrote {len(summary['files'])} files to {args.out}")
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from millvib_env import bench
+
+    result = {"plant": bench.bench_plant(t_end=args.t_end, repeats=args.repeats, progress=not args.quiet)}
+    print(bench.format_plant_bench(result["plant"]))
+    if not args.plant_only:
+        env_res = bench.bench_envs(progress=not args.quiet)
+        result["envs"] = env_res
+        print()
+        print(bench.format_env_bench(env_res))
+    if args.json:
+        bench.save_json(result, args.json)
+        print(f"\nwrote {args.json}")
+    return 0
+
+
+def _cmd_params(args) -> int:
+    from millvib_env.params import MillParams
+
+    print(f"{'name':>10} {'default':>12} {'unit':>12}  meaning [allowed range]")
+    for name, default, unit, doc, rule in MillParams.describe():
+        print(f"{name:>10} {default:>12.6g} {unit:>12}  {doc} [{rule}]")
+    return 0
+
+
+def _cmd_scenarios(args) -> int:
+    from millvib_env.envs.scenarios import format_scenarios
+
+    print(format_scenarios(measure=not args.no_measure))
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from millvib_env.training.train import train_from_cli
+
+    return train_from_cli(args)
+
+
+def _cmd_benchmark(args) -> int:
+    from millvib_env.training.benchmark import benchmark_from_cli
+
+    return benchmark_from_cli(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="millvib", description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    from millvib_env import __version__
+
+    parser.add_argument("--version", action="version", version=f"millvib-env {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="<command>")
+
+    p = sub.add_parser("simulate", help="one closed-loop run", description=(
+        "Simulate one closed-loop plant from the paper's initial state (x0 = 1 mm at rest) and print its "
+        "vibration severity (mm/s RMS, 10-1000 Hz), ISO 10816-3 zone, kind of motion over the last 40 %% of "
+        "the run and RMS tracking error."))
+    _add_plant_args(p)
+    p.add_argument("--t-end", type=float, default=1.0, help="simulated time, s (default 1.0)")
+    p.add_argument("--x0", type=float, default=1e-3, help="initial displacement, m (default 1e-3)")
+    p.add_argument("--xd", type=float, default=0.0, help="set-point, m (default 0)")
+    p.add_argument("--method", choices=["fast", "reference"], default="fast",
+                   help="fast: compiled adaptive BS3(2); reference: scipy LSODA at rtol 1e-9")
+    p.add_argument("--plot", metavar="PNG", help="write a figure of x, phase portrait, pressures and valve command")
+    p.add_argument("--csv", metavar="CSV", help="write the sampled run (10 kHz) as CSV")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("reproduce", help="the paper's studies, figures and tables", description=(
+        "Simulate the paper's nine cases (c1, Ct and KP studies), write the analogues of Figs. 4-9 (PNG), the "
+        "numbers (CSV, JSON), a map of the kind of motion over (c1, KP) and the linear stability map, and print "
+        "the table with a verdict per claim."))
+    p.add_argument("--out", default="results/paper", help="output folder (default results/paper)")
+    p.add_argument("--t-end", type=float, default=1.0, help="simulated time per case, s (default 1.0)")
+    p.add_argument("--method", choices=["fast", "reference"], default="fast")
+    p.add_argument("--no-maps", action="store_true", help="skip the motion and stability maps")
+    p.add_argument("--resolution", type=int, default=14, help="grid points per axis of the maps (default 14)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_reproduce)
+
+    p = sub.add_parser("bench", help="integrator and environment throughput", description=(
+        "Measure in one run: wall time per simulated second of the reference (LSODA, rtol 1e-6) and the fast "
+        "integrator on the paper's nine cases with the fast one's error against a tight reference; batched "
+        "throughput over 256 random plants; and environment steps per second (native VecEnv vs SB3 "
+        "DummyVecEnv)."))
+    p.add_argument("--t-end", type=float, default=1.0, help="simulated time per case, s (default 1.0)")
+    p.add_argument("--repeats", type=int, default=3, help="timing repeats per case, median taken (default 3)")
+    p.add_argument("--plant-only", action="store_true", help="skip the environment benchmark")
+    p.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("params", help="list the plant parameters")
+    p.set_defaults(func=_cmd_params)
+
+    p = sub.add_parser("scenarios", help="list the named failure scenarios", description=(
+        "List the named scenarios (the paper's fixed-PID failure cases) with the paper PID's severity, ISO zone "
+        "and tracking error, measured now."))
+    p.add_argument("--no-measure", action="store_true", help="only list names and descriptions")
+    p.set_defaults(func=_cmd_scenarios)
+
+    from millvib_env.training.cli_args import add_benchmark_args, add_train_args
+
+    add_train_args(sub.add_parser("train", help="train an agent", description=(
+        "Train a Stable-Baselines3 agent with the hyperparameters of configs/agents/<algo>.yml for the env id: "
+        "progress bar, TensorBoard logs, periodic evaluation, checkpoints, --resume, final model and "
+        "VecNormalize statistics.")), _cmd_train)
+    add_benchmark_args(sub.add_parser("benchmark", help="controllers on held-out plants", description=(
+        "Evaluate controllers (PID baselines and agents) on the same held-out plants and on every named "
+        "scenario; report severity (mean, median, p95), ISO zones, tracking RMS, divergence and cost. With no "
+        "arguments: the shipped agents against the four PID baselines.")), _cmd_benchmark)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as err:
+        print(f"millvib {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,224 @@
+"""Plant parameters and PID gains: validated, frozen, loadable from YAML presets.
+
+`MillParams` holds the paper's Table 1 as defaults (SI units), named after the paper's symbols,
+plus the pump pulsation and three modelling choices the paper leaves open (flow-root
+regularisation, servo-amplifier saturation, pulsation harmonics). Every field documents its
+meaning, unit and allowed range; constructing an instance with a value outside that range raises
+`ValueError` naming the field, the value and the range.
+
+The numeric fields are packed, in declaration order, into the float64 vector the compiled plant
+model reads (`MillParams.to_array`, `PARAM_FIELDS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from millvib_env._paths import config_dir
+
+__all__ = [
+    "MillParams",
+    "PIDGains",
+    "PAPER_GAINS",
+    "PARAM_FIELDS",
+    "load_preset",
+    "list_presets",
+    "parse_overrides",
+]
+
+
+def _p(default: float, unit: str, doc: str, rule: str) -> Any:
+    return field(default=default, metadata={"unit": unit, "doc": doc, "rule": rule})
+
+
+@dataclass(frozen=True)
+class MillParams:
+    """Parameters of the hydraulic screw-down system (paper Table 1, SI units).
+
+    Equations (paper numbering): valve flow (1)-(3), chamber continuity (4), LuGre friction
+    (5)-(7), piston force balance (8), PID (11). See `millvib_env.plant.model`.
+    """
+
+    Ap: float = _p(0.19635, "m^2", "rod-less chamber area (0.5 m bore)", "> 0")
+    Ab: float = _p(0.030159, "m^2", "rod chamber effective area", ">= 0")
+    mt: float = _p(1200.0, "kg", "equivalent mass of piston and load roll system", "> 0")
+    c1: float = _p(2.25e6, "N s/m", "equivalent viscous damping (uncertain: temperature, wear)", ">= 0")
+    k1: float = _p(2.5e9, "N/m", "load (mill stand) spring stiffness", ">= 0")
+    FL: float = _p(2.0e6, "N", "external (rolling) force opposing extension", ">= 0")
+    Ct: float = _p(5.0e-16, "m^3/(s Pa)", "internal leakage coefficient (uncertain: seal wear)", ">= 0")
+    ps: float = _p(1.8e7, "Pa", "mean supply pressure", "> pt")
+    pt: float = _p(0.0, "Pa", "return (tank) pressure", ">= 0")
+    pb: float = _p(1.0e6, "Pa", "rod chamber back pressure (held constant)", ">= 0")
+    beta_e: float = _p(7.0e8, "Pa", "effective bulk modulus of the oil", "> 0")
+    rho: float = _p(850.0, "kg/m^3", "oil density", "> 0")
+    Cd: float = _p(0.62, "-", "valve port flow (discharge) coefficient", "in (0, 1]")
+    W: float = _p(0.025, "m", "valve area gradient (port width)", "> 0")
+    Kp1: float = _p(0.0125, "A/V", "servo amplifier gain", "> 0")
+    Ksv: float = _p(0.01, "m/A", "servo valve gain (spool stroke per current)", "> 0")
+    L1: float = _p(0.15, "m", "initial piston stroke (sets the chamber volume Ap*(L1+x))", "> 0")
+    L: float = _p(0.26, "m", "cylinder stroke; x must stay in [-L1, L-L1]", "> L1")
+    sigma0: float = _p(4.4178e9, "N/m", "LuGre bristle stiffness", "> 0")
+    sigma1: float = _p(1.0e5, "N s/m", "LuGre bristle micro-damping", ">= 0")
+    sigma2: float = _p(1.0e5, "N s/m", "LuGre viscous friction", ">= 0")
+    fc: float = _p(16000.0, "N", "Coulomb friction force", ">= 0")
+    fs: float = _p(22000.0, "N", "maximum static (stiction) friction force", "> 0 and >= fc")
+    vs: float = _p(0.1, "m/s", "Stribeck velocity", "> 0")
+    pulse_amp: float = _p(
+        0.12, "-", "pump pulsation: amplitude of the fundamental as a fraction of ps (paper: 12 %)",
+        "in [0, 1)")
+    pulse_freq: float = _p(
+        115.5, "Hz", "pump pulsation frequency (990 rpm x 7 plungers / 60)", ">= 0")
+    pulse_h2: float = _p(
+        0.0, "-", "2nd-harmonic amplitude of the pulsation, relative to the fundamental",
+        "finite, with pulse_amp*(1+|pulse_h2|+|pulse_h3|) < 1")
+    pulse_h3: float = _p(
+        0.0, "-", "3rd-harmonic amplitude of the pulsation, relative to the fundamental",
+        "finite, with pulse_amp*(1+|pulse_h2|+|pulse_h3|) < 1")
+    dp_reg: float = _p(
+        1.0e5, "Pa", "orifice root regularisation: sqrt(|dp|) becomes dp/(dp^2+dp_reg^2)^(1/4) "
+        "(Modelica regRoot); differs from sqrt by < 0.3 % for |dp| > 10*dp_reg", "> 0")
+    u_max: float = _p(
+        math.inf, "V", "servo-amplifier input saturation |u| <= u_max (paper: none, inf)",
+        "> 0 (inf allowed)")
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise ValueError(
+                    f"MillParams.{f.name} = {value!r} is invalid: must be a real number ({f.metadata['rule']})")
+            value = float(value)
+            object.__setattr__(self, f.name, value)
+            if math.isnan(value) or (math.isinf(value) and f.name != "u_max"):
+                raise ValueError(
+                    f"MillParams.{f.name} = {value!r} is invalid: must be finite ({f.metadata['rule']})")
+        for name, ok in self._checks():
+            if not ok:
+                f = self.__dataclass_fields__[name]
+                raise ValueError(
+                    f"MillParams.{name} = {getattr(self, name)!r} [{f.metadata['unit']}] is invalid: "
+                    f"allowed range is {f.metadata['rule']}")
+
+    def _checks(self):
+        h = abs(self.pulse_h2) + abs(self.pulse_h3)
+        return [
+            ("Ap", self.Ap > 0), ("Ab", self.Ab >= 0), ("mt", self.mt > 0), ("c1", self.c1 >= 0),
+            ("k1", self.k1 >= 0), ("FL", self.FL >= 0), ("Ct", self.Ct >= 0), ("pt", self.pt >= 0),
+            ("ps", self.ps > self.pt), ("pb", self.pb >= 0), ("beta_e", self.beta_e > 0),
+            ("rho", self.rho > 0), ("Cd", 0 < self.Cd <= 1), ("W", self.W > 0),
+            ("Kp1", self.Kp1 > 0), ("Ksv", self.Ksv > 0), ("L1", self.L1 > 0), ("L", self.L > self.L1),
+            ("sigma0", self.sigma0 > 0), ("sigma1", self.sigma1 >= 0), ("sigma2", self.sigma2 >= 0),
+            ("fc", self.fc >= 0), ("fs", self.fs > 0 and self.fs >= self.fc), ("vs", self.vs > 0),
+            ("pulse_amp", 0 <= self.pulse_amp < 1), ("pulse_freq", self.pulse_freq >= 0),
+            ("pulse_h2", self.pulse_amp * (1 + h) < 1), ("pulse_h3", self.pulse_amp * (1 + h) < 1),
+            ("dp_reg", self.dp_reg > 0), ("u_max", self.u_max > 0),
+        ]
+
+    # -- conversions -------------------------------------------------------------------------
+    def replace(self, **changes: float) -> "MillParams":
+        """A copy with some fields changed (validated); unknown names raise ValueError."""
+        unknown = set(changes) - set(PARAM_FIELDS)
+        if unknown:
+            raise ValueError(f"unknown MillParams field(s) {sorted(unknown)}; known: {list(PARAM_FIELDS)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, float]:
+        return {name: getattr(self, name) for name in PARAM_FIELDS}
+
+    def to_array(self) -> np.ndarray:
+        """Pack into the float64 vector the compiled model reads (order: `PARAM_FIELDS`)."""
+        return np.array([getattr(self, name) for name in PARAM_FIELDS], dtype=np.float64)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "MillParams":
+        unknown = set(data) - set(PARAM_FIELDS)
+        if unknown:
+            raise ValueError(f"unknown MillParams field(s) {sorted(unknown)}; known: {list(PARAM_FIELDS)}")
+        return cls(**{k: _as_float(k, v) for k, v in data.items()})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "MillParams":
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh) or {}
+        return cls.from_dict(data.get("params", data))
+
+    @classmethod
+    def describe(cls) -> list[tuple[str, float, str, str, str]]:
+        """(name, default, unit, meaning, allowed range) for every field, for docs and the CLI."""
+        return [(f.name, f.default, f.metadata["unit"], f.metadata["doc"], f.metadata["rule"])
+                for f in dataclasses.fields(cls)]
+
+
+PARAM_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MillParams))
+
+
+def _as_float(name: str, value: Any) -> float:
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            raise ValueError(f"{name} = {value!r} is not a number") from None
+    return value
+
+
+@dataclass(frozen=True)
+class PIDGains:
+    """PID gains of the position loop, paper Eq. (11): u = KP e + KI int(e) dt + KD de/dt.
+
+    Units: kp in V/m, ki in V/(m s), kd in V s/m (u is the servo-amplifier input in volts,
+    e = xd - x in metres). All must be finite and >= 0.
+    """
+
+    kp: float
+    ki: float = 0.0
+    kd: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "ki", "kd"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise ValueError(f"PIDGains.{name} = {value!r} is invalid: must be a real number >= 0")
+            value = float(value)
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f"PIDGains.{name} = {value!r} is invalid: allowed range is [0, inf) (finite)")
+            object.__setattr__(self, name, value)
+
+    def to_array(self) -> np.ndarray:
+        return np.array([self.kp, self.ki, self.kd], dtype=np.float64)
+
+
+#: The paper's nominal controller (given with its KP study): KP = 1e5, KI = 0.001, KD = 0.
+PAPER_GAINS = PIDGains(kp=1.0e5, ki=1.0e-3, kd=0.0)
+
+
+def list_presets() -> list[str]:
+    """Names of the plant presets under configs/plant/."""
+    return sorted(p.stem for p in (config_dir() / "plant").glob("*.yaml"))
+
+
+def load_preset(name: str = "paper") -> MillParams:
+    """Load `configs/plant/<name>.yaml` (or a path to a YAML file) as MillParams."""
+    path = Path(name)
+    if not path.suffix:
+        path = config_dir() / "plant" / f"{name}.yaml"
+        if not path.exists():
+            raise ValueError(f"plant preset {name!r} not found; available: {list_presets()}")
+    return MillParams.from_yaml(path)
+
+
+def parse_overrides(items: list[str] | None) -> dict[str, float]:
+    """Parse CLI overrides like ["c1=2.25e5", "Ct=5e-9"] into a dict of floats."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ValueError(f"override {item!r} must look like NAME=VALUE (e.g. c1=2.25e5)")
+        key, _, value = item.partition("=")
+        out[key.strip()] = _as_float(key.strip(), value.strip())
+    return out

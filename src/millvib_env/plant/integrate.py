@@ -1,0 +1,348 @@
+"""Public simulation API: `simulate` (one plant) and `simulate_batch` (N plants), two methods.
+
+* ``method="fast"``: the compiled adaptive Bogacki-Shampine 3(2) kernel (`kernel.py`), batched
+  over plants with numba threads; no Python per time step.
+* ``method="reference"``: `scipy.integrate.solve_ivp` at tight tolerances (LSODA by default;
+  ``ivp_method="RK45"`` is the paper's ode45, Radau/BDF/DOP853 also accepted).
+
+Both call the same right-hand side (`model.plant_rhs`), sample on the same grid
+``t_k = k * dt_out`` and return the same `SimResult`. A run that leaves the physical envelope
+(non-finite state, piston outside its stroke, |pL| above `p_max`) or cannot be integrated is
+flagged ``diverged`` with the time it happened; its samples after that time are NaN, never
+silently.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence, Union
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
+from millvib_env.plant import kernel
+from millvib_env.plant.model import (AUX_NAMES, IPL, IX, NY, P_L, P_L1, STATE_NAMES, drive_vector,
+                                     initial_state, pack)
+from millvib_env.severity import iso_zone, vibration_severity
+
+__all__ = ["SimResult", "BatchResult", "simulate", "simulate_batch", "DEFAULT_RTOL_FAST",
+           "DEFAULT_RTOL_REFERENCE", "state_scale"]
+
+XdSpec = Union[float, np.ndarray, Callable[[np.ndarray], np.ndarray]]
+
+DEFAULT_RTOL_FAST = 1e-6
+DEFAULT_RTOL_REFERENCE = 1e-9
+DEFAULT_DT_OUT = 1e-4  # s: 10 kHz samples, Nyquist 5 kHz, well above the 1 kHz severity band
+P_MAX_FACTOR = 10.0  # |pL| above 10 x the mean supply pressure is reported as divergence
+MAX_STEPS_PER_SECOND = 2_000_000
+
+
+def state_scale(params: MillParams) -> np.ndarray:
+    """Typical magnitude of each state (x, v, pL, z, uI); absolute tolerance = rtol * scale."""
+    return np.array([1e-3, 1.0, params.ps, params.fs / params.sigma0, 10.0])
+
+
+@dataclass
+class SimResult:
+    """One simulated run, sampled at ``t`` (s). Arrays in SI units:
+
+    x (m), v (m/s), a (m/s^2), pL (Pa), z (m, LuGre bristle), uI (V, PID integral term),
+    u (V, valve command), xv (m, spool), QL (m^3/s, valve flow), Ff (N, friction), ps (Pa, supply),
+    xd (m, set-point).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    pL: np.ndarray
+    z: np.ndarray
+    uI: np.ndarray
+    u: np.ndarray
+    xv: np.ndarray
+    QL: np.ndarray
+    Ff: np.ndarray
+    ps: np.ndarray
+    xd: np.ndarray
+    params: MillParams
+    gains: PIDGains
+    method: str
+    diverged: bool = False
+    t_diverged: float | None = None
+    status: str = "ok"
+    n_steps: int = 0  # integrator work: steps (fast) or right-hand-side evaluations (reference)
+    info: dict = field(default_factory=dict)
+
+    @property
+    def dt(self) -> float:
+        return float(self.t[1] - self.t[0])
+
+    def window(self, t_start: float = 0.0) -> slice:
+        k0 = int(math.ceil(t_start / self.dt - 1e-9))
+        return slice(k0, None)
+
+    def severity(self, *, t_start: float = 0.0, quantity: str = "acceleration",
+                 band: tuple[float, float] = (10.0, 1000.0)) -> float:
+        """Vibration severity (mm/s) of the piston from `t_start` on (see `vibration_severity`).
+
+        Raises ValueError for a diverged run (its samples after divergence are NaN).
+        """
+        if self.diverged:
+            raise ValueError(f"run diverged at t = {self.t_diverged:.6g} s ({self.status}); "
+                             "a diverged run has no severity")
+        sig = {"acceleration": self.a, "velocity": self.v, "displacement": self.x}[quantity]
+        return vibration_severity(sig[self.window(t_start)], 1.0 / self.dt, quantity=quantity, band=band)
+
+    def iso_zone(self, **kw) -> str:
+        return iso_zone(self.severity(**kw))
+
+    def tracking_rms(self, t_start: float = 0.0) -> float:
+        """RMS of the position error xd - x (m) from `t_start` on."""
+        w = self.window(t_start)
+        return float(np.sqrt(np.mean((self.xd[w] - self.x[w]) ** 2)))
+
+
+@dataclass
+class BatchResult:
+    """N runs on one time grid: arrays of shape (N, n_t); ``result[i]`` gives a SimResult.
+
+    ``states`` is (N, n_t, 5) in the order x, v, pL, z, uI; ``aux`` (N, n_t, 6) in the order
+    a, u, xv, QL, Ff, ps, computed from the states on first access. ``result.x`` etc. give one
+    (N, n_t) array per quantity.
+    """
+
+    t: np.ndarray
+    states: np.ndarray  # (N, n_t, NY)
+    xd: np.ndarray  # (N, n_t)
+    params: list[MillParams]
+    gains: list[PIDGains]
+    method: str
+    diverged: np.ndarray
+    t_diverged: np.ndarray
+    status: list[str]
+    n_steps: np.ndarray
+    wall_s: float
+    drive: dict = field(default_factory=dict)
+    _aux: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def aux(self) -> np.ndarray:
+        if self._aux is None:
+            C = np.stack([drive_vector(g, **self.drive) for g in self.gains])
+            self._aux = np.stack([kernel.aux_at(self.t, self.states[b], pack(self.params[b]), C[b], self.xd[b])
+                                  for b in range(len(self))])
+        return self._aux
+
+    def __len__(self) -> int:
+        return self.states.shape[0]
+
+    def __getitem__(self, i: int) -> SimResult:
+        s, a = self.states[i], self.aux[i]
+        arrays = {name: s[:, j] for j, name in enumerate(STATE_NAMES)}
+        arrays.update({name: a[:, j] for j, name in enumerate(AUX_NAMES)})
+        return SimResult(t=self.t, xd=self.xd[i], params=self.params[i], gains=self.gains[i],
+                         method=self.method, diverged=bool(self.diverged[i]),
+                         t_diverged=float(self.t_diverged[i]) if self.diverged[i] else None,
+                         status=self.status[i], n_steps=int(self.n_steps[i]), **arrays)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name in STATE_NAMES:
+            return self.states[:, :, STATE_NAMES.index(name)]
+        if name in AUX_NAMES:
+            return self.aux[:, :, AUX_NAMES.index(name)]
+        raise AttributeError(name)
+
+
+# --- argument handling ---------------------------------------------------------------------------
+def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
+    if not (math.isfinite(t_end) and t_end > 0):
+        raise ValueError(f"t_end = {t_end!r} s is invalid: must be finite and > 0")
+    if not (math.isfinite(dt_out) and 0 < dt_out <= t_end):
+        raise ValueError(f"dt_out = {dt_out!r} s is invalid: must be in (0, t_end = {t_end}]")
+    n = int(round(t_end / dt_out)) + 1
+    return np.arange(n) * dt_out
+
+
+def _xd_samples(xd: XdSpec, t: np.ndarray, n_plants: int) -> np.ndarray:
+    if callable(xd):
+        vals = np.asarray(xd(t), dtype=np.float64)
+        if vals.shape == ():
+            vals = np.array([float(xd(tk)) for tk in t])
+    else:
+        vals = np.asarray(xd, dtype=np.float64)
+    if vals.ndim == 0:
+        vals = np.full(t.shape, float(vals))
+    if vals.shape[-1] != t.size or vals.ndim > 2:
+        raise ValueError(f"xd has shape {vals.shape}; expected a scalar, a function of t, ({t.size},) "
+                         f"or ({n_plants}, {t.size}) samples on the output grid")
+    if not np.all(np.isfinite(vals)):
+        raise ValueError("xd contains NaN or inf")
+    return np.ascontiguousarray(np.broadcast_to(vals, (n_plants, t.size)))
+
+
+def _as_list(obj, cls, n: int | None, name: str) -> list:
+    if isinstance(obj, cls):
+        return [obj] * (n or 1)
+    items = list(obj)
+    for item in items:
+        if not isinstance(item, cls):
+            raise ValueError(f"{name} must be {cls.__name__} or a sequence of them, got {type(item).__name__}")
+    return items
+
+
+def _check_rtol(rtol: float) -> float:
+    if not (math.isfinite(rtol) and 1e-14 <= rtol <= 1e-2):
+        raise ValueError(f"rtol = {rtol!r} is invalid: allowed range is [1e-14, 1e-2]")
+    return float(rtol)
+
+
+# --- public API ---------------------------------------------------------------------------------
+def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_end: float = 0.5, *,
+             x0: float = 1.0e-3, xd: XdSpec = 0.0, method: str = "fast", dt_out: float = DEFAULT_DT_OUT,
+             rtol: float | None = None, ivp_method: str = "LSODA", u_ext: float = 0.0,
+             pid_on: bool = True, y0: np.ndarray | None = None) -> SimResult:
+    """Simulate one closed-loop plant from the paper's initial state.
+
+    Parameters
+    ----------
+    params, gains : plant and PID gains (default: Table 1 and the paper's KP=1e5, KI=1e-3, KD=0).
+    t_end : simulated time (s); samples every `dt_out` s from 0 to t_end.
+    x0 : initial displacement (m); the plant starts at rest with zero acceleration (MODEL.md).
+    xd : set-point (m): a constant, a function of t, or samples on the output grid (held between
+        samples; the integration restarts at every change).
+    method : "fast" (compiled BS3(2)) or "reference" (solve_ivp with `ivp_method`).
+    rtol : relative tolerance (default 1e-6 fast, 1e-9 reference); atol = rtol * state_scale.
+    u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
+    y0 : full initial state (x, v, pL, z, uI), overriding x0.
+    """
+    params = params or MillParams()
+    gains = gains or PAPER_GAINS
+    res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
+                         ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
+                         y0=None if y0 is None else np.asarray(y0)[None, :])
+    out = res[0]
+    out.info["wall_s"] = res.wall_s
+    return out
+
+
+def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | Sequence[PIDGains],
+                   t_end: float = 0.5, *, x0: float | np.ndarray = 1.0e-3, xd: XdSpec = 0.0,
+                   method: str = "fast", dt_out: float = DEFAULT_DT_OUT, rtol: float | None = None,
+                   ivp_method: str = "LSODA", u_ext: float = 0.0, pid_on: bool = True,
+                   y0: np.ndarray | None = None, progress: bool = False) -> BatchResult:
+    """Simulate N independent plants, each with its own parameters and gains.
+
+    `params` and `gains` are single objects (shared) or sequences of equal length N. The fast
+    method advances all N plants in one compiled, multi-threaded call. Other arguments as in
+    `simulate`; `x0` may be an array of N values and `xd` an (N, n_t) array.
+    """
+    t = _time_grid(float(t_end), float(dt_out))
+    n = None
+    for obj in (params, gains):
+        if not isinstance(obj, (MillParams, PIDGains)):
+            n = len(obj) if n is None else n
+    p_list = _as_list(params, MillParams, n, "params")
+    g_list = _as_list(gains, PIDGains, n, "gains")
+    if len(p_list) != len(g_list):
+        raise ValueError(f"params ({len(p_list)}) and gains ({len(g_list)}) must have the same length")
+    N = len(p_list)
+    XD = _xd_samples(xd, t, N)
+    x0s = np.broadcast_to(np.asarray(x0, dtype=np.float64), (N,))
+    if not np.all(np.isfinite(x0s)):
+        raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
+    P = np.stack([pack(p) for p in p_list])
+    C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on) for g in g_list])
+    if y0 is None:
+        Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
+    else:
+        Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))
+    for p, y in zip(p_list, Y0):
+        if not (-p.L1 < y[IX] < p.L - p.L1):
+            raise ValueError(f"x0 = {y[IX]!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
+    p_max = P_MAX_FACTOR * max(p.ps for p in p_list)
+    max_steps = int(MAX_STEPS_PER_SECOND * max(t_end, 1e-3)) + 1000
+
+    start = time.perf_counter()
+    if method == "fast":
+        rtol = _check_rtol(DEFAULT_RTOL_FAST if rtol is None else rtol)
+        atol = np.stack([rtol * state_scale(p) for p in p_list])
+        YS = np.empty((N, t.size, NY))
+        status = np.zeros(N, dtype=np.int64)
+        t_fail = np.full(N, np.nan)
+        n_steps = np.zeros(N, dtype=np.int64)
+        kernel.simulate_batch_kernel(P, C, Y0, XD, float(dt_out), rtol, atol, p_max, max_steps,
+                                     YS, status, t_fail, n_steps)
+    elif method == "reference":
+        rtol = _check_rtol(DEFAULT_RTOL_REFERENCE if rtol is None else rtol)
+        YS, status, t_fail, n_steps = _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method,
+                                                            p_max, progress)
+    else:
+        raise ValueError(f"method = {method!r} is invalid: use 'fast' or 'reference'")
+    wall = time.perf_counter() - start
+    return BatchResult(t=t, states=YS, xd=XD, params=p_list, gains=g_list, method=method,
+                       diverged=status != kernel.OK, t_diverged=t_fail,
+                       status=[kernel.STATUS_TEXT[int(s)] for s in status], n_steps=n_steps, wall_s=wall,
+                       drive={"u_ext": u_ext, "pid_on": pid_on})
+
+
+def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress):
+    N = P.shape[0]
+    YS = np.full((N, t.size, NY), np.nan)
+    status = np.zeros(N, dtype=np.int64)
+    t_fail = np.full(N, np.nan)
+    n_steps = np.zeros(N, dtype=np.int64)
+    iterator = range(N)
+    if progress:
+        from tqdm.auto import tqdm
+        iterator = tqdm(iterator, desc="reference", unit="plant")
+    for b in iterator:
+        YS[b], status[b], t_fail[b], n_steps[b] = _reference_one(P[b], C[b], Y0[b], XD[b], t, rtol,
+                                                                 p_list[b], ivp_method, p_max)
+    return YS, status, t_fail, n_steps
+
+
+def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max):
+    from millvib_env.plant.model import C_XD
+
+    atol = rtol * state_scale(params)
+    lo, hi = -p[P_L1], p[P_L] - p[P_L1]
+
+    def inside_envelope(_t, y, c):  # > 0 while inside: stroke margin and pressure margin
+        return min(y[IX] - lo, hi - y[IX], (p_max - abs(y[IPL])) * 1e-9)
+
+    inside_envelope.terminal = True
+
+    def rhs(tt, y, c):
+        return kernel.rhs_vector(tt, y, p, c)
+
+    out = np.full((t.size, NY), np.nan)
+    out[0] = y0
+    y = y0.copy()
+    n_evals = 0
+    j0 = 0
+    n = t.size
+    while j0 < n - 1:
+        j1 = j0 + 1
+        while j1 < n - 1 and xd[j1] == xd[j0]:
+            j1 += 1
+        c = c0.copy()
+        c[C_XD] = xd[j0]
+        sol = solve_ivp(rhs, (t[j0], t[j1]), y, method=ivp_method, t_eval=t[j0 + 1:j1 + 1], rtol=rtol,
+                        atol=atol, args=(c,), events=inside_envelope)
+        n_evals += sol.nfev
+        m = sol.y.shape[1]
+        out[j0 + 1:j0 + 1 + m] = sol.y.T
+        if sol.status != 0 or m < j1 - j0 or not np.all(np.isfinite(sol.y)):
+            t_bad = sol.t_events and [te[0] for te in sol.t_events if len(te)]
+            tf = float(min(t_bad)) if t_bad else float(sol.t[-1] if sol.t.size else t[j0])
+            out[j0 + 1 + m:] = np.nan
+            return out, kernel.LEFT_ENVELOPE if sol.status >= 0 else kernel.STEP_UNDERFLOW, tf, n_evals
+        y = sol.y[:, -1].copy()
+        j0 = j1
+    return out, kernel.OK, np.nan, n_evals

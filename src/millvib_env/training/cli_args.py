@@ -1,0 +1,41 @@
+"""Arguments of `millvib train` and `millvib benchmark` (kept apart so `millvib --help` stays fast)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_train_args(p: argparse.ArgumentParser, func) -> None:
+    p.add_argument("--algo", required=True, choices=["ppo", "sac", "recurrentppo"],
+                   help="algorithm; hyperparameters come from configs/agents/<algo>.yml")
+    p.add_argument("--env", default="MillVib-GainSchedule-v0",
+                   help="environment id (default MillVib-GainSchedule-v0), the key in the YAML")
+    p.add_argument("--seed", type=int, default=0, help="training seed (default 0); evaluation plants use seed+1000")
+    p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
+    p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
+    p.add_argument("--log-dir", default="runs", help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed>")
+    p.add_argument("--save-dir", help="where the final model, VecNormalize stats and model card go "
+                                      "(default: the run folder)")
+    p.add_argument("--resume", action="store_true", help="continue from the run folder's last checkpoint")
+    p.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N environment steps (default 10000)")
+    p.add_argument("--n-eval-episodes", type=int, default=8, help="episodes per evaluation (default 8)")
+    p.add_argument("--checkpoint-freq", type=int, default=20_000, help="checkpoint every N steps (default 20000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=func)
+
+
+def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
+    p.add_argument("--controllers", nargs="+",
+                   help="controllers to evaluate: pid-paper pid-nominal pid-robust pid-oracle and agent names "
+                        "(folders under agents/, e.g. ppo-gain) or paths to agent folders (default: all four PIDs "
+                        "and every shipped agent)")
+    p.add_argument("--env", default="MillVib-GainSchedule-v0",
+                   help="environment id the plants are drawn from (default MillVib-GainSchedule-v0)")
+    p.add_argument("--episodes", type=int, default=40, help="held-out plants per controller (default 40)")
+    p.add_argument("--seed", type=int, default=20_000,
+                   help="seed of the held-out plants (default 20000; training and tuning use other seeds)")
+    p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios")
+    p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
+    p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=func)

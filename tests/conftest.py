@@ -1,0 +1,28 @@
+"""Shared fixtures. numba compiles each kernel once per source version (cached on disk, see
+millvib_env._numba_cache); the first test that simulates pays it, the rest reuse it."""
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import numpy as np
+import pytest
+
+from millvib_env import MillParams, PIDGains
+from millvib_env.analysis.paper import PAPER_STUDIES
+
+
+@pytest.fixture(scope="session")
+def paper_cases():
+    """The paper's nine cases: (label, MillParams, PIDGains)."""
+    return [(case.label, case.params, case.gains) for study in PAPER_STUDIES for case in study.cases]
+
+
+@pytest.fixture(scope="session")
+def random_draws():
+    """50 plants and gains drawn log-uniformly over the ranges the fast integrator must cover."""
+    rng = np.random.default_rng(20261122)
+    n = 50
+    c1 = np.exp(rng.uniform(np.log(1.25e5), np.log(2.25e6), n))
+    ct = np.exp(rng.uniform(np.log(5e-16), np.log(5e-9), n))
+    kp = np.exp(rng.uniform(np.log(1e4), np.log(4e6), n))
+    return ([MillParams(c1=a, Ct=b) for a, b in zip(c1, ct)], [PIDGains(k, 1e-3, 0.0) for k in kp])

@@ -1,0 +1,57 @@
+"""Linearisation and the stability map, checked against simulation."""
+import numpy as np
+import pytest
+
+from millvib_env import MillParams, PIDGains
+from millvib_env.analysis.dynamics import classify_motion
+from millvib_env.analysis.linear import critical_kp, jacobian, operating_point, stability_map
+from millvib_env.plant.integrate import simulate
+
+
+@pytest.mark.parametrize("c1, ct", [(2.25e6, 5e-16), (2.25e5, 5e-16), (1.25e5, 5e-9), (6e5, 5e-10)])
+def test_local_critical_gain_separates_settling_from_sustained_vibration(c1, ct):
+    # the linearisation is of the autonomous loop: switch the pump forcing off to test it
+    params = MillParams(c1=c1, Ct=ct, pulse_amp=0.0)
+    kp_crit = critical_kp(params, 1e-3, friction="stick")
+    outcomes = {}
+    for factor in (0.8, 1.2):
+        gains = PIDGains(factor * kp_crit, 1e-3)
+        y0 = operating_point(params, gains).y.copy()
+        y0[0] += 1e-6  # a small disturbance: the bristles stay in pre-sliding
+        outcomes[factor] = classify_motion(simulate(params, gains, 0.6, y0=y0))
+    assert outcomes[0.8].settled
+    assert not outcomes[1.2].settled
+
+
+def test_large_disturbances_destabilise_below_the_local_limit():
+    # between the sliding and the stick critical gains a 1 mm start grows into a limit cycle
+    # although the resting equilibrium is locally stable (hard excitation)
+    params = MillParams(pulse_amp=0.0)
+    kp_slide = critical_kp(params, 1e-3, friction="sliding")
+    kp_stick = critical_kp(params, 1e-3, friction="stick")
+    assert kp_slide < kp_stick
+    kp = 0.5 * (1.2 * kp_slide + kp_stick)
+    assert not classify_motion(simulate(params, PIDGains(kp, 1e-3), 0.6)).settled
+
+
+def test_critical_gain_rises_with_damping():
+    crit = stability_map([1.25e5, 5e5, 2.25e6], [5e-16], friction="stick")[:, 0]
+    assert np.all(np.diff(crit) > 0)
+
+
+def test_operating_point_is_an_equilibrium_with_the_leakage_offset():
+    params = MillParams(Ct=5e-9, pulse_amp=0.0)
+    gains = PIDGains(1e5, 1e-3)
+    op = operating_point(params, gains)
+    assert op.x < -1e-4  # a leaking cylinder sags under proportional control
+    run = simulate(params, gains, 0.3)
+    # within the friction band: the bristles hold up to fs = 22 kN, i.e. ~10 um against the stand
+    assert run.x[-1] == pytest.approx(op.x, abs=params.fs / params.k1)
+    settled = operating_point(params, gains, integral="settled")
+    assert settled.x == 0.0 and settled.y[4] > 0
+
+
+def test_jacobian_shapes():
+    params, gains = MillParams(), PIDGains(1e5, 1e-3)
+    assert jacobian(params, gains, operating_point(params, gains)).shape == (3, 3)
+    assert jacobian(params, gains, operating_point(params, gains, integral="settled")).shape == (4, 4)

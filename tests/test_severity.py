@@ -1,0 +1,95 @@
+"""Vibration severity on signals whose answer is known."""
+import math
+
+import numpy as np
+import pytest
+from scipy import signal as ssig
+
+from millvib_env import MillParams, PIDGains
+from millvib_env.plant.integrate import simulate
+from millvib_env.severity import iso_table, iso_zone, vibration_severity
+
+FS = 10_000.0
+T = np.arange(int(2.0 * FS)) / FS
+
+
+def tone_velocity(f_hz, v_amp):
+    return v_amp * np.sin(2 * np.pi * f_hz * T)
+
+
+@pytest.mark.parametrize("f_hz", [20.0, 115.5, 400.0, 900.0])
+def test_in_band_tone_gives_its_rms_from_every_quantity(f_hz):
+    v_amp = 5e-3  # m/s -> 3.536 mm/s RMS
+    w = 2 * np.pi * f_hz
+    vel = tone_velocity(f_hz, v_amp)
+    acc = v_amp * w * np.cos(w * T)
+    disp = -v_amp / w * np.cos(w * T)
+    expected = 1000 * v_amp / math.sqrt(2)
+    for signal, quantity in ((acc, "acceleration"), (vel, "velocity"), (disp, "displacement")):
+        assert vibration_severity(signal, FS, quantity=quantity) == pytest.approx(expected, rel=0.01), quantity
+
+
+@pytest.mark.parametrize("quantity", ["acceleration", "velocity", "displacement"])
+def test_out_of_band_drift_and_hiss_are_removed(quantity):
+    rng = np.random.default_rng(0)
+    tone = tone_velocity(115.5, 2e-3)  # 1.41 mm/s RMS
+    drift = 0.05 * np.sin(2 * np.pi * 0.7 * T) + 0.02 * T  # slow wander and a ramp: 25x the tone
+    # hiss an octave above the band at half the tone's RMS, not periodic in the record
+    sos = ssig.butter(8, (1500, 3000), btype="bandpass", fs=FS, output="sos")
+    hiss = ssig.sosfilt(sos, rng.normal(0, 1e-3, T.size))
+
+    def as_quantity(vel):
+        if quantity == "acceleration":
+            return np.gradient(vel, 1 / FS)
+        if quantity == "displacement":
+            return np.cumsum(vel) / FS
+        return vel
+
+    clean = vibration_severity(as_quantity(tone), FS, quantity=quantity)
+    dirty = vibration_severity(as_quantity(tone + drift + hiss), FS, quantity=quantity)
+    assert dirty == pytest.approx(clean, rel=0.02)
+    assert vibration_severity(as_quantity(drift), FS, quantity=quantity) < 0.01 * clean
+    # what hiss leaves in the band is bounded by the kink it makes at the record's ends
+    assert vibration_severity(as_quantity(hiss), FS, quantity=quantity) < 0.15 * 1000 * hiss.std()
+
+
+def test_acceleration_path_integrates_out_a_drifting_offset():
+    # an accelerometer with a DC offset and a slow drift: plain time integration would explode
+    acc = 9.81 + 0.5 * T + np.gradient(tone_velocity(300.0, 1e-3), 1 / FS)
+    assert vibration_severity(acc, FS) == pytest.approx(1000 * 1e-3 / math.sqrt(2), rel=0.02)
+
+
+@pytest.mark.parametrize("c1, ct, kp", [(2.25e6, 5e-9, 1e5), (1.25e5, 5e-16, 1e5), (2.25e6, 5e-16, 3.9e6),
+                                       (1.25e5, 5e-16, 2e6)])
+def test_acceleration_velocity_and_displacement_paths_agree_on_simulated_data(c1, ct, kp):
+    # whole records: a 1 mm transient, the pump-driven response, or a limit cycle
+    run = simulate(MillParams(c1=c1, Ct=ct), PIDGains(kp, 1e-3), 0.5)
+    from_acc = run.severity(quantity="acceleration")
+    assert run.severity(quantity="velocity") == pytest.approx(from_acc, rel=0.02)
+    assert run.severity(quantity="displacement") == pytest.approx(from_acc, rel=0.02)
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(signal=np.array([1.0, np.nan] * 8)), "NaN"),
+    (dict(fs=-1.0), "fs"),
+    (dict(band=(100.0, 10.0)), "band"),
+    (dict(band=(10.0, 8000.0)), "Nyquist"),
+    (dict(quantity="jerk"), "quantity"),
+    (dict(signal=np.ones((4, 4))), "1-D"),
+])
+def test_bad_input_raises(bad, match):
+    args = dict(signal=np.ones(64), fs=FS)
+    args.update(bad)
+    with pytest.raises(ValueError, match=match):
+        vibration_severity(args.pop("signal"), args.pop("fs"), **args)
+
+
+def test_iso_10816_3_zones():
+    table = iso_table()
+    assert table.boundaries_mm_s == (2.3, 4.5, 7.1) and "10816-3" in table.source
+    assert [iso_zone(v) for v in (1.0, 2.3, 3.0, 5.0, 7.1, 20.0)] == ["A", "A", "B", "C", "C", "D"]
+    assert iso_zone(3.0, "group1_flexible") == "A"
+    with pytest.raises(ValueError, match="machine class"):
+        iso_zone(1.0, "group9")
+    with pytest.raises(ValueError, match="severity"):
+        iso_zone(float("nan"))
