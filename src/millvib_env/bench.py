@@ -1,4 +1,4 @@
-"""`millvib bench`: speed of the integrators (and, with the environments, of env stepping).
+"""`millvib bench`: speed of the integrators and of environment stepping.
 
 Plant timings, all on the 10 kHz output grid, integration only (the auxiliary outputs are
 computed afterwards from the states, the same way for both methods):
@@ -26,7 +26,7 @@ from millvib_env.analysis.paper import PAPER_STUDIES
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.integrate import simulate, simulate_batch
 
-__all__ = ["bench_plant", "random_plants", "format_plant_bench"]
+__all__ = ["bench_plant", "bench_envs", "random_plants", "format_plant_bench", "format_env_bench"]
 
 
 def random_plants(n: int, seed: int = 0, kp_range: tuple[float, float] = (1e4, 4e6)):
@@ -108,6 +108,59 @@ def format_plant_bench(res: dict) -> str:
                  f"threads: {b['plant_seconds_per_wall_second']:.0f} plant-s per wall-s over random draws "
                  f"(KP 1e4-4e6, c1, Ct log-uniform; {b['diverged']} diverged), "
                  f"{b['stable_draws_plant_seconds_per_wall_second']:.0f} plant-s/s with KP <= 3e5 (no limit cycles).")
+    return "\n".join(lines)
+
+
+def _time_vec(venv, actions: np.ndarray) -> float:
+    venv.reset()
+    for a in actions[:5]:  # warm-up: kernels loaded, buffers touched
+        venv.step(a)
+    start = time.perf_counter()
+    for a in actions[5:]:
+        venv.step(a)
+    return (len(actions) - 5) * venv.num_envs / (time.perf_counter() - start)
+
+
+def bench_envs(*, n_envs: int = 64, native_steps: int = 1000, dummy_steps: int = 100, seed: int = 0,
+               progress: bool = True) -> dict:
+    """Environment steps per second: the native VecEnv against SB3's DummyVecEnv over single envs.
+
+    Uniform random actions in [-1, 1] (the valve mode's full +-100 V range every millisecond: a
+    hard, non-quiet load), new plants drawn at every reset, auto-resets included.
+    """
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from millvib_env.envs.vec_env import MillVibVecEnv
+
+    rows = []
+    cases = [("MillVib-Valve-v0", {}), ("MillVib-Valve-v0", {"residual": True}), ("MillVib-GainSchedule-v0", {})]
+    iterator = cases
+    if progress:
+        from tqdm.auto import tqdm
+        iterator = tqdm(cases, desc="bench: environments", unit="env")
+    for env_id, kwargs in iterator:
+        native = MillVibVecEnv(env_id, n_envs, seed=seed, **kwargs)
+        rng = np.random.default_rng(seed)
+        acts = rng.uniform(-1, 1, (native_steps + 5, n_envs, *native.action_space.shape)).astype(np.float32)
+        native_rate = _time_vec(native, acts)
+        dummy = DummyVecEnv([lambda: gym.make(env_id, **kwargs) for _ in range(n_envs)])
+        dummy.seed(seed)
+        dummy_rate = _time_vec(dummy, acts[:dummy_steps + 5])
+        period = native.core.period_s
+        rows.append({"env_id": env_id + (" (residual)" if kwargs.get("residual") else ""), "n_envs": n_envs,
+                     "native_steps_per_s": native_rate, "dummy_steps_per_s": dummy_rate,
+                     "speedup": native_rate / dummy_rate, "simulated_s_per_wall_s": native_rate * period})
+    return {"n_envs": n_envs, "rows": rows}
+
+
+def format_env_bench(res: dict) -> str:
+    lines = [f"Environment stepping, {res['n_envs']} envs, uniform random actions, auto-resets included:",
+             "| environment | native VecEnv (steps/s) | SB3 DummyVecEnv (steps/s) | speed-up | simulated s per wall s |",
+             "|---|---|---|---|---|"]
+    for r in res["rows"]:
+        lines.append(f"| {r['env_id']} | {r['native_steps_per_s']:,.0f} | {r['dummy_steps_per_s']:,.0f} | "
+                     f"{r['speedup']:.1f}x | {r['simulated_s_per_wall_s']:.0f} |")
     return "\n".join(lines)
 
 

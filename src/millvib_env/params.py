@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
+from millvib_env._yaml import load_yaml
 
 from millvib_env._paths import config_dir
 
@@ -145,8 +145,7 @@ class MillParams:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "MillParams":
-        with open(path, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh) or {}
+        data = load_yaml(path) or {}
         return cls.from_dict(data.get("params", data))
 
     @classmethod

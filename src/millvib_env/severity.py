@@ -37,7 +37,7 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-import yaml
+from millvib_env._yaml import load_yaml
 from scipy import fft as sfft
 
 from millvib_env._paths import config_dir
@@ -152,8 +152,7 @@ class IsoZoneTable:
 
 @lru_cache(maxsize=None)
 def _load_iso_tables() -> tuple[str, str, dict[str, IsoZoneTable]]:
-    with open(config_dir() / "severity.yaml", encoding="utf-8") as fh:
-        data = yaml.safe_load(fh)
+    data = load_yaml(config_dir() / "severity.yaml")
     tables = {name: IsoZoneTable(name, tuple(float(b) for b in t["boundaries_mm_s"]), data["source"],
                                  t.get("description", ""))
               for name, t in data["iso10816_3"].items()}

@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from millvib_env.plant.model import C_XD, NAUX, NC, NY, plant_rhs, state_ok
+from millvib_env.plant.model import C_DFL, C_XD, NAUX, NC, NY, plant_rhs, state_ok
 
 OK, LEFT_ENVELOPE, STEP_UNDERFLOW, STEP_BUDGET = 0, 1, 2, 3
 STATUS_TEXT = {OK: "ok", LEFT_ENVELOPE: "left the physical envelope (non-finite state, stroke or pressure)",
@@ -176,6 +176,58 @@ def simulate_batch_kernel(P, C, Y0, XD, dt_out, rtol, ATOL, p_max, max_steps, YS
         n_steps[b] = ns
 
 
+@njit(cache=True, parallel=True)
+def advance_batch(P, C, Y, F, H, T, XD, DFL, active, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS, AUXS,
+                  status, n_valid, n_steps):
+    """Advance N plants by one agent period of len(XD[b]) sub-intervals of dt_sub seconds each.
+
+    The environments' stepping kernel. Per plant b (if active[b]): the drive C[b] (gains, valve
+    command, eccentricity) is held over the period; xd and the force offset take XD[b, j], DFL[b, j]
+    in sub-interval j. Y[b] (state), F[b] (FSAL derivative, recomputed here), H[b] (step size) and
+    T[b] (time) are carried from call to call. Writes spp samples per sub-interval: YS[b, 0] and
+    AUXS[b, 0] are the state at the start of the period, then k = 1 .. n_sub*spp at
+    T[b] + k dt_sub/spp. n_valid[b] counts the samples written (fewer if the plant left its
+    envelope: status[b] != 0).
+    """
+    for b in prange(P.shape[0]):
+        if not active[b]:
+            continue
+        p = P[b]
+        c = C[b]
+        y = Y[b]
+        f = F[b]
+        ys = YS[b]
+        auxs = AUXS[b]
+        t0 = T[b]
+        dt_s = dt_sub / spp
+        c[C_XD] = XD[b, 0]
+        c[C_DFL] = DFL[b, 0]
+        plant_rhs(t0, y, p, c, f, auxs[0])
+        for i in range(NY):
+            ys[0, i] = y[i]
+        scratch = np.empty(NAUX)
+        t = t0
+        h = H[b]
+        k = 1
+        total = 0
+        st = 0
+        for j in range(XD.shape[1]):
+            if j > 0 and (XD[b, j] != c[C_XD] or DFL[b, j] != c[C_DFL]):
+                c[C_XD] = XD[b, j]
+                c[C_DFL] = DFL[b, j]
+                plant_rhs(t, y, p, c, f, scratch)
+            t, h, k, st, ns = advance(t, t0 + (j + 1) * dt_sub, y, f, h, p, c, rtol, ATOL[b], p_max,
+                                      max_steps - total, t0, dt_s, k, ys, auxs, True)
+            total += ns
+            if st != 0:
+                break
+        T[b] = t
+        H[b] = h
+        status[b] = st
+        n_valid[b] = k
+        n_steps[b] = total
+
+
 @njit(cache=True)
 def aux_at(T, Y, p, c0, xd):
     """Auxiliary outputs (a, u, xv, QL, Ff, ps) at (t, y) samples, xd per sample; NaN rows stay NaN."""
@@ -203,5 +255,5 @@ def rhs_vector(t, y, p, c):
     return dy
 
 
-__all__ = ["advance", "simulate_one", "simulate_batch_kernel", "aux_at", "rhs_vector",
+__all__ = ["advance", "advance_batch", "simulate_one", "simulate_batch_kernel", "aux_at", "rhs_vector",
            "STATUS_TEXT", "NC"]

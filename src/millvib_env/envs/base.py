@@ -1,0 +1,213 @@
+"""The two Gymnasium environments. Both are thin wrappers over `MillVibCore` with one plant."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import MillVibCore
+
+__all__ = ["MillVibEnv", "GainScheduleEnv", "ValveEnv"]
+
+
+class MillVibEnv(gym.Env):
+    """Common base: a new screw-down plant every episode (see the subclasses' manuals)."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+    mode = "gain"
+
+    def __init__(self, config: str | dict | None = "default", *, residual: bool = False,
+                 observe_params: bool | None = None, observe_phase: bool | None = None,
+                 render_mode: str | None = None, **overrides: Any):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
+                             "or None")
+        self.config = load_env_config(config, **overrides)
+        self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
+                                observe_phase=observe_phase)
+        self.action_space = self.core.action_space
+        self.observation_space = self.core.observation_space
+        self.render_mode = render_mode
+        self._figure = None
+
+    @property
+    def params(self):
+        """The current episode's MillParams."""
+        return self.core.params[0]
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.core.np_random[0] = self.np_random
+        obs, info = self.core.reset_env(0, None, options)
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, infos = self.core.step(action)
+        if self.render_mode == "human":
+            self.render()
+        return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), infos[0]
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'.")
+            return None
+        from millvib_env.envs.rendering import render_frame
+
+        frame, self._figure = render_frame(self.core, self._figure, human=self.render_mode == "human")
+        return frame if self.render_mode == "rgb_array" else None
+
+    def close(self):
+        if self._figure is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._figure)
+            self._figure = None
+
+
+class GainScheduleEnv(MillVibEnv):
+    """## Description
+
+    A gain scheduler for the hydraulic screw-down (gap-control) cylinder of a rolling mill. The
+    plant is the one of the source paper (servo valve and amplifier, cylinder with oil
+    compressibility and internal leakage, LuGre seal friction, mill stand spring and damping,
+    rolling force, 115.5 Hz pump pressure pulsation) under a continuous-time PID position loop.
+    Every decision period (10 ms) the agent sets the PID gains. Each episode draws a new plant:
+    the damping c1 and the internal leakage Ct, which drift with oil temperature and seal wear
+    and make a fixed-gain PID fail, are log-uniform over [1.25e5, 2.25e6] N s/m and
+    [5e-16, 5e-9] m^3/(s Pa). The agent does not see them; it must infer them from the response.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``: (KP, KI, KD), each mapped on a log scale onto its bounds,
+    ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))``:
+
+    | index | gain | unit | bounds (default config) |
+    |---|---|---|---|
+    | 0 | KP | V/m | [1e4, 1e7] (the paper's 1e5 and 3.5e6 inside; the stability limit, 5e5-1.4e7, reached) |
+    | 1 | KI | V/(m s) | [1e-3, 1e8] |
+    | 2 | KD | V s/m | [1, 3e4] (1 is negligible: derivative effectively off) |
+
+    The PID runs continuously inside the simulation (u = KP e + uI - KD v, derivative on the
+    measurement). Its state holds the integral *term* uI, so a gain change is bumpless: the
+    integral term does not jump. Finite actions outside [-1, 1] are clipped; NaN, inf or a wrong
+    shape raise ValueError.
+
+    ## Observation Space
+
+    ``Box(-1, 1, (8,), float32)`` by default. Signed-log channels are
+    ``sign(q) ln(1 + |q|/q0) / ln(1 + q_max/q0)``:
+
+    | index | observation | unit | scaling |
+    |---|---|---|---|
+    | 0 | position error xd - x | m | signed log, q0 = 1e-6, q_max = 5e-3 |
+    | 1 | piston velocity | m/s | signed log, q0 = 1e-4, q_max = 5 |
+    | 2 | piston acceleration (accelerometer) | m/s^2 | signed log, q0 = 1e-2, q_max = 1e5 |
+    | 3 | chamber pressure pL | Pa | (pL - ps/2) / ps, clipped |
+    | 4 | running RMS of band-limited (10-1000 Hz) velocity, time constant 20 ms | mm/s | log, q0 = 1e-2, q_max = 1e4 |
+    | 5-7 | current KP, KI, KD (= the last action) | | the action's log mapping |
+    | +2 | sin, cos of the pump phase (``observe_phase=True``) | | |
+    | +2 | true log c1, log Ct over their ranges (``observe_params=True``, ablations only) | | linear to [-1, 1] |
+
+    Values are sampled at the end of each decision period; optional sensor noise and delay act on
+    channels 0-2 (and the whole vector for the delay).
+
+    ## Rewards
+
+    Per step, with v_b the band-limited (10-1000 Hz, causal 4th-order Butterworth) velocity and
+    e = xd - x sampled at 10 kHz over the period:
+    ``r = -(w_v RMS(v_b) / 4.5 mm/s + w_e RMS(e) / 10 um + w_u mean|a_t - a_(t-1)|) - P [terminated]``
+    with w_v = w_e = 1, w_u = 0.05, P = 100 (all in the config's ``reward`` section). 4.5 mm/s is the
+    ISO 10816-3 B/C boundary. The benchmark's episode cost is
+    ``severity / 4.5 + tracking_rms / 10 um``; minus the mean per-step reward is the same sum with
+    per-step RMS values, so it equals the cost for a steady response and is at most the cost
+    (RMS of means <= overall RMS) when the response changes over the episode.
+
+    ## Starting State
+
+    The paper's: the piston 1 mm from the set-point (``initial.x0_m``, optionally jittered), at rest
+    with zero acceleration (which fixes the chamber pressure), bristles at the static friction
+    fs. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0) and zero integral.
+
+    ## Episode End
+
+    * Termination: the plant leaves its physical envelope (|x| > 5 mm, pL < -1 MPa or pL > 3 ps,
+      the piston outside its stroke, or a numerical failure), with the terminal penalty.
+    * Truncation: after ``episode_s`` = 0.5 s (50 steps; ``max_episode_steps`` at registration).
+
+    At the end ``info`` carries the episode metrics: ``severity`` (mm/s, `vibration_severity` of the
+    episode's acceleration), ``tracking_rms_um``, ``iso_zone``, ``diverged``, ``episode_return``, and
+    always ``params`` (the true c1, Ct, ...).
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    import millvib_env
+    env = gym.make("MillVib-GainSchedule-v0", config="default", observe_params=False,
+                   observe_phase=False, render_mode=None, episode_s=0.5)
+    obs, info = env.reset(seed=0, options={"params": {"c1": 1.25e5}})   # pin parameters
+    obs, info = env.reset(options={"scenario": "low-damping"})         # a named failure case
+    ```
+
+    ``config`` names a YAML in configs/env/ (``default``, ``paper``: no extra disturbances,
+    ``realistic``) or is a dict; any top-level key of it can be given as a keyword.
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    mode = "gain"
+
+
+class ValveEnv(MillVibEnv):
+    """## Description
+
+    Direct valve control of the rolling mill's hydraulic screw-down cylinder (the plant of
+    `GainScheduleEnv`): every control period (1 ms) the agent commands the servo-amplifier input.
+    With ``residual=True`` the command is added to a fixed PID's (the paper's gains by default,
+    ``actions.residual_gains``): the agent learns a correction.
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``: u_agent = a * 100 V (``actions.u_range_v``; residual mode:
+    ``actions.residual_range_v``). The valve spool moves xv = Ksv Kp1 u (1.25 mm per 10 V). The
+    command is held over the period. Finite actions outside [-1, 1] are clipped; NaN, inf or a
+    wrong shape raise ValueError.
+
+    ## Observation Space
+
+    ``Box(-1, 1, (6,), float32)`` (7 in residual mode): channels 0-4 as in `GainScheduleEnv`
+    (error, velocity, acceleration, pressure, running band-limited vibration), then the last
+    action; in residual mode also the PID's own command (V / residual range, clipped). Optional
+    pump phase and true parameters as in `GainScheduleEnv`.
+
+    ## Rewards
+
+    As `GainScheduleEnv`, with effort = a^2 (the command's size) instead of the gain changes.
+
+    ## Starting State
+
+    As `GainScheduleEnv`; without residual mode no PID acts.
+
+    ## Episode End
+
+    As `GainScheduleEnv`; truncation after 0.5 s = 500 steps.
+
+    ## Arguments
+
+    ```python
+    env = gym.make("MillVib-Valve-v0", residual=True, config="default")
+    ```
+
+    ## Version History
+
+    * v0: initial release.
+    """
+
+    mode = "valve"

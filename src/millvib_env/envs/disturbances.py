@@ -1,0 +1,119 @@
+"""Episode disturbances as small composable classes, built by a factory from configuration.
+
+Each disturbance draws its episode realisation from its own generator (a child of the episode's
+SeedSequence) and writes into the episode's profile arrays on the control grid (one value per
+control period): set-point xd (m) and rolling-force offset dFL (N). Roll eccentricity is a
+sinusoidal force whose amplitude, frequency and phase are drawn per episode; sensor noise and
+delay act on the observation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["EpisodeProfile", "SetpointSteps", "ForceSteps", "Eccentricity", "SensorNoise", "build_disturbances"]
+
+
+@dataclass
+class EpisodeProfile:
+    """What one episode's disturbances do, on the control grid of `n` periods of `dt` seconds."""
+
+    n: int
+    dt: float
+    xd: np.ndarray = field(init=False)
+    dFL: np.ndarray = field(init=False)
+    ecc_amp_n: float = 0.0
+    ecc_omega: float = 0.0
+    ecc_phase: float = 0.0
+    events: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self.xd = np.zeros(self.n)
+        self.dFL = np.zeros(self.n)
+
+
+def _range(spec, key):
+    lo, hi = spec[key]
+    return float(lo), float(hi)
+
+
+def _step_times(rng, spec, profile: EpisodeProfile) -> list[int]:
+    lo_n, hi_n = (int(v) for v in spec["count"])
+    count = int(rng.integers(lo_n, hi_n + 1))
+    t_lo, t_hi = _range(spec, "window_s")
+    t_hi = min(t_hi, profile.n * profile.dt)
+    times = np.sort(rng.uniform(t_lo, t_hi, count)) if count and t_hi > t_lo else np.array([])
+    return [min(profile.n - 1, int(t / profile.dt)) for t in times]
+
+
+@dataclass(frozen=True)
+class SetpointSteps:
+    """Gauge corrections: `count` set-point steps of +-amplitude_m at times in window_s."""
+
+    spec: dict
+
+    def apply(self, rng, profile: EpisodeProfile, params) -> None:
+        lo, hi = _range(self.spec, "amplitude_m")
+        for k in _step_times(rng, self.spec, profile):
+            step = rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi)
+            profile.xd[k:] += step
+            profile.events.append(("setpoint", k * profile.dt, float(step)))
+
+
+@dataclass(frozen=True)
+class ForceSteps:
+    """Entry-thickness or hardness changes: rolling-force steps of +-fraction x FL."""
+
+    spec: dict
+
+    def apply(self, rng, profile: EpisodeProfile, params) -> None:
+        lo, hi = _range(self.spec, "fraction")
+        for k in _step_times(rng, self.spec, profile):
+            step = rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi) * params.FL
+            profile.dFL[k:] += step
+            profile.events.append(("force", k * profile.dt, float(step)))
+
+
+@dataclass(frozen=True)
+class Eccentricity:
+    """Roll eccentricity: a force F sin(2 pi f t + phase), amplitude and frequency drawn per episode."""
+
+    spec: dict
+
+    def apply(self, rng, profile: EpisodeProfile, params) -> None:
+        a_lo, a_hi = _range(self.spec, "amplitude_n")
+        f_lo, f_hi = _range(self.spec, "frequency_hz")
+        profile.ecc_amp_n = float(rng.uniform(a_lo, a_hi))
+        profile.ecc_omega = float(2 * np.pi * rng.uniform(f_lo, f_hi))
+        profile.ecc_phase = float(rng.uniform(0, 2 * np.pi))
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """Gaussian measurement noise on the observed position (m), velocity (m/s), acceleration (m/s^2)."""
+
+    x_m: float = 0.0
+    v_m_s: float = 0.0
+    a_m_s2: float = 0.0
+
+    def sample(self, rng, n: int) -> np.ndarray:
+        return rng.normal(0.0, 1.0, (n, 3)) * np.array([self.x_m, self.v_m_s, self.a_m_s2])
+
+
+_PROFILE_KINDS = {"setpoint_steps": SetpointSteps, "force_steps": ForceSteps, "eccentricity": Eccentricity}
+
+
+def build_disturbances(spec: dict) -> tuple[list, SensorNoise | None, int]:
+    """From the config's `disturbances` section: (profile disturbances, sensor noise, delay steps)."""
+    items = []
+    for key, cls in _PROFILE_KINDS.items():
+        if spec.get(key):
+            items.append(cls(dict(spec[key])))
+    unknown = set(spec) - set(_PROFILE_KINDS) - {"sensor_noise", "delay_steps"}
+    if unknown:
+        raise ValueError(f"unknown disturbance(s) {sorted(unknown)}; known: {sorted(_PROFILE_KINDS)}, "
+                         "sensor_noise, delay_steps")
+    noise = SensorNoise(**spec["sensor_noise"]) if spec.get("sensor_noise") else None
+    return items, noise, int(spec.get("delay_steps") or 0)

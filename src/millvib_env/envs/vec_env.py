@@ -1,0 +1,125 @@
+"""Native batched VecEnv: all N plants advance in one compiled call (Stable-Baselines3 semantics)."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
+
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import MillVibCore
+
+__all__ = ["MillVibVecEnv", "make_vec_env", "ENV_IDS"]
+
+#: registered id -> (mode, default keyword arguments)
+ENV_IDS = {"MillVib-GainSchedule-v0": ("gain", {}), "MillVib-Valve-v0": ("valve", {})}
+
+
+class MillVibVecEnv(VecEnv):
+    """N MillVib environments stepped together, with SB3's auto-reset semantics.
+
+    Identical, step for step, to ``DummyVecEnv`` over N single environments with the same seeds
+    (``seed(s)`` seeds env i with s + i; an auto-reset continues each env's own generator):
+    done environments report ``terminal_observation`` and ``TimeLimit.truncated`` in their info and
+    return the first observation of their next episode.
+    """
+
+    def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
+                 config: str | dict | None = "default", residual: bool = False,
+                 observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
+        if env_id not in ENV_IDS:
+            raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
+        if render_mode not in (None, "rgb_array", "human"):
+            raise ValueError(f"render_mode = {render_mode!r} is invalid")
+        mode, _ = ENV_IDS[env_id]
+        self.env_id = env_id
+        self.render_mode = render_mode
+        self.config = load_env_config(config, **overrides)
+        self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
+                                observe_phase=observe_phase)
+        super().__init__(n_envs, self.core.observation_space, self.core.action_space)
+        self._actions: np.ndarray | None = None
+        self._figure = None
+        if seed is not None:
+            self.seed(seed)
+
+    # --- VecEnv API -----------------------------------------------------------------------------
+    def reset(self) -> np.ndarray:
+        obs = np.zeros((self.num_envs, *self.observation_space.shape), dtype=np.float32)
+        for i in range(self.num_envs):
+            obs[i], self.reset_infos[i] = self.core.reset_env(i, self._seeds[i], self._options[i] or None)
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        obs, reward, terminated, truncated, infos = self.core.step(self._actions)
+        dones = terminated | truncated
+        for i, info in enumerate(infos):
+            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        for i in np.flatnonzero(dones):
+            infos[i]["terminal_observation"] = obs[i].copy()
+            obs[i], self.reset_infos[i] = self.core.reset_env(i)
+        return obs, reward.astype(np.float32), dones, infos
+
+    def close(self) -> None:
+        if self._figure is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._figure)
+            self._figure = None
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        from millvib_env.envs.rendering import render_frame
+
+        frame, self._figure = render_frame(self.core, self._figure)
+        return [frame]
+
+    def _per_env(self, name: str) -> list | None:
+        per_env = {"params": self.core.params, "scenario": self.core.scenario, "np_random": self.core.np_random}
+        return per_env.get(name)
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        idx = list(self._get_indices(indices))
+        values = self._per_env(attr_name)
+        if values is not None:
+            return [values[i] for i in idx]
+        for owner in (self, self.core):
+            if hasattr(owner, attr_name):
+                return [getattr(owner, attr_name)] * len(idx)
+        raise AttributeError(f"MillVib environments have no attribute {attr_name!r}")
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        if attr_name == "render_mode":
+            self.render_mode = value
+            return
+        raise AttributeError(f"setting {attr_name!r} on a batched MillVib env is not supported; make a new one")
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
+        idx = list(self._get_indices(indices))
+        if method_name == "reset":
+            return [self.core.reset_env(i, *method_args, **method_kwargs) for i in idx]
+        raise AttributeError(f"MillVib environments have no method {method_name!r} callable through the VecEnv")
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        return [False] * len(list(self._get_indices(indices)))
+
+
+def make_vec_env(env_id: str, n_envs: int = 1, seed: int | None = None, *, monitor: bool = True,
+                 **env_kwargs: Any) -> VecEnv:
+    """The native batched VecEnv for a MillVib id (optionally wrapped in SB3's VecMonitor).
+
+    ``env_kwargs`` are the environment's keyword arguments (``config``, ``residual``,
+    ``observe_params``, any config key). With ``monitor=True`` (default) episode returns and lengths
+    are reported in ``info["episode"]`` as SB3's Monitor does.
+    """
+    venv: VecEnv = MillVibVecEnv(env_id, n_envs, seed=seed, **env_kwargs)
+    if monitor:
+        venv = VecMonitor(venv)
+    return venv

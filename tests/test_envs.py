@@ -1,0 +1,212 @@
+"""The Gymnasium environments: API conformance, seeding, plant draws, batching, robustness."""
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from scipy import stats
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import millvib_env
+from millvib_env.envs.scenarios import list_scenarios
+
+ENV_CASES = [("MillVib-GainSchedule-v0", {}), ("MillVib-Valve-v0", {}), ("MillVib-Valve-v0", {"residual": True})]
+
+
+@pytest.mark.parametrize("env_id, kwargs", ENV_CASES)
+def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any checker warning fails the test
+        gym_check_env(gym.make(env_id, **kwargs).unwrapped, skip_render_check=True)
+    sb3_check_env(gym.make(env_id, **kwargs), warn=True)
+
+
+@pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v0", "MillVib-Valve-v0"])
+def test_registration_sets_the_episode_length(env_id):
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    assert spec.max_episode_steps == env.unwrapped.core.max_steps
+    assert spec.max_episode_steps == (50 if "Gain" in env_id else 500)
+
+
+def rollout(env, seed, actions):
+    obs, info = env.reset(seed=seed)
+    out = [obs]
+    rewards = []
+    for a in actions:
+        obs, r, term, trunc, info = env.step(a)
+        out.append(obs)
+        rewards.append(r)
+        if term or trunc:
+            break
+    return np.array(out), np.array(rewards), info
+
+
+def test_seeded_resets_reproduce_episodes_exactly():
+    env = gym.make("MillVib-GainSchedule-v0")
+    actions = np.random.default_rng(1).uniform(-1, 1, (60, 3))
+    a = rollout(env, 123, actions)
+    b = rollout(gym.make("MillVib-GainSchedule-v0"), 123, actions)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert a[2]["severity"] == b[2]["severity"]
+    c = rollout(env, 124, actions)
+    assert c[2]["params"]["c1"] != a[2]["params"]["c1"]
+
+
+def test_c1_and_ct_spread_log_uniformly_over_their_ranges():
+    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 1, seed=7, monitor=False)
+    core = venv.core
+    c1, ct = [], []
+    for _ in range(400):
+        _, info = core.reset_env(0)
+        c1.append(info["params"]["c1"])
+        ct.append(info["params"]["Ct"])
+    c1, ct = np.log(c1), np.log(ct)
+    for values, lo, hi in ((c1, 1.25e5, 2.25e6), (ct, 5e-16, 5e-9)):
+        assert values.min() >= np.log(lo) - 1e-12 and values.max() <= np.log(hi) + 1e-12
+        u = (values - np.log(lo)) / (np.log(hi) - np.log(lo))
+        assert stats.kstest(u, "uniform").pvalue > 0.01
+    assert abs(np.corrcoef(c1, ct)[0, 1]) < 0.15  # drawn independently
+
+
+def test_params_are_hidden_unless_asked_and_always_in_info():
+    plain = gym.make("MillVib-GainSchedule-v0")
+    ablation = gym.make("MillVib-GainSchedule-v0", observe_params=True)
+    assert ablation.observation_space.shape[0] == plain.observation_space.shape[0] + 2
+    _, info = plain.reset(seed=0)
+    assert set(info["params"]) >= {"c1", "Ct"}
+    _, _, _, _, info = plain.step(np.zeros(3))
+    assert set(info["params"]) >= {"c1", "Ct"}
+
+
+def test_reset_options_pin_parameters_and_load_scenarios():
+    env = gym.make("MillVib-GainSchedule-v0")
+    _, info = env.reset(seed=0, options={"params": {"c1": 3.0e5}})
+    assert info["params"]["c1"] == 3.0e5
+    for name in list_scenarios():
+        _, info = env.reset(options={"scenario": name})
+        assert info["scenario"] == name and info["disturbances"] == []
+    with pytest.raises(ValueError, match="scenario"):
+        env.reset(options={"scenario": "nope"})
+    with pytest.raises(ValueError, match="MillParams.c1"):
+        env.reset(options={"params": {"c1": -1.0}})
+
+
+@pytest.mark.parametrize("env_id, kwargs", ENV_CASES)
+def test_native_vec_env_equals_dummy_vec_env_over_single_envs(env_id, kwargs):
+    n, seed = 4, 11
+    native = millvib_env.make_vec_env(env_id, n, seed=seed, monitor=False, **kwargs)
+    dummy = DummyVecEnv([lambda: gym.make(env_id, **kwargs) for _ in range(n)])
+    dummy.seed(seed)
+    obs_n, obs_d = native.reset(), dummy.reset()
+    np.testing.assert_allclose(obs_n, obs_d, rtol=1e-6, atol=1e-7)
+    steps = 2 * native.get_attr("max_steps")[0] + 5  # two full episodes and an auto-reset
+    rng = np.random.default_rng(3)
+    shape = native.action_space.shape
+    done_seen = 0
+    for _ in range(steps):
+        act = rng.uniform(-1, 1, (n, *shape)).astype(np.float32)
+        on, rn, dn, inf_n = native.step(act)
+        od, rd, dd, inf_d = dummy.step(act)
+        np.testing.assert_allclose(on, od, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(rn, rd, rtol=1e-6, atol=1e-6)
+        assert np.array_equal(dn, dd)
+        for i in np.flatnonzero(dn):
+            done_seen += 1
+            np.testing.assert_allclose(inf_n[i]["terminal_observation"], inf_d[i]["terminal_observation"],
+                                       rtol=1e-6, atol=1e-7)
+            assert inf_n[i]["TimeLimit.truncated"] == inf_d[i]["TimeLimit.truncated"]
+            assert inf_n[i]["severity"] == pytest.approx(inf_d[i]["severity"], rel=1e-9)
+    assert done_seen >= 2 * n
+
+
+@pytest.mark.parametrize("bad", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0]), np.zeros(2), np.zeros((2, 3))])
+def test_bad_actions_raise_clear_errors(bad):
+    env = gym.make("MillVib-GainSchedule-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.unwrapped.step(bad)
+
+
+def test_out_of_range_actions_are_clipped():
+    env = gym.make("MillVib-Valve-v0").unwrapped
+    env.reset(seed=0)
+    a, *_ = env.step(np.array([5.0]))
+    env.reset(seed=0)
+    b, *_ = env.step(np.array([1.0]))
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v0", "MillVib-Valve-v0"])
+def test_random_actions_in_the_unstable_corner_never_give_nan(env_id):
+    # low damping, high leakage, and actions pushed to their extremes (KP up to 1e7, full valve)
+    venv = millvib_env.make_vec_env(env_id, 8, seed=5, monitor=False,
+                                    randomize={"c1": {"dist": "loguniform", "low": 1.25e5, "high": 2.5e5},
+                                               "Ct": {"dist": "loguniform", "low": 1e-10, "high": 5e-9}})
+    venv.reset()
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(venv.get_attr("max_steps")[0] + 10):
+        act = np.sign(rng.uniform(-1, 1, (8, *venv.action_space.shape)))
+        obs, rew, done, infos = venv.step(act)
+        assert np.all(np.isfinite(obs)) and np.all(np.isfinite(rew))
+        assert np.all(np.abs(obs) <= 1.0)
+        for i in np.flatnonzero(done):
+            ends += 1
+            assert np.isfinite(infos[i]["severity"]) and np.isfinite(infos[i]["tracking_rms_um"])
+    assert ends >= 8
+
+
+def test_episode_end_info_has_the_metrics():
+    env = gym.make("MillVib-GainSchedule-v0")
+    env.reset(seed=2)
+    while True:
+        _, _, term, trunc, info = env.step(np.zeros(3))
+        if term or trunc:
+            break
+    for key in ("severity", "tracking_rms_um", "iso_zone", "diverged", "params"):
+        assert key in info
+    assert info["iso_zone"] in "ABCD" and info["severity"] > 0
+
+
+def test_render_rgb_array_gives_a_frame():
+    env = gym.make("MillVib-GainSchedule-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(np.zeros(3))
+    frame = env.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8 and frame.std() > 0
+    env.close()
+
+
+def test_record_video_wrapper_works(tmp_path):
+    pytest.importorskip("moviepy")
+    folder = tmp_path / "videos"
+    env = gym.wrappers.RecordVideo(gym.make("MillVib-GainSchedule-v0", render_mode="rgb_array"), str(folder),
+                                   episode_trigger=lambda k: k == 0)
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(np.zeros(3))
+    env.close()
+    assert list(folder.glob("*.mp4"))
+
+
+def test_config_errors_name_the_key():
+    with pytest.raises(ValueError, match="episode_s"):
+        gym.make("MillVib-GainSchedule-v0", episode_s=-1.0)
+    with pytest.raises(ValueError, match="unknown env config"):
+        gym.make("MillVib-GainSchedule-v0", episodes=3)
+    with pytest.raises(ValueError, match="randomize"):
+        gym.make("MillVib-GainSchedule-v0", randomize={"damping": {"low": 1, "high": 2}})
+
+
+def test_ppo_trains_on_the_native_vec_env():
+    from stable_baselines3 import PPO
+
+    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 4, seed=0)
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=2, seed=0, device="cpu")
+    model.learn(total_timesteps=2048)
+    action, _ = model.predict(venv.reset(), deterministic=True)
+    assert action.shape == (4, 3) and np.all(np.abs(action) <= 1)
