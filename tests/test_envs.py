@@ -85,9 +85,13 @@ def test_reset_options_pin_parameters_and_load_scenarios():
     env = gym.make("MillVib-GainSchedule-v0")
     _, info = env.reset(seed=0, options={"params": {"c1": 3.0e5}})
     assert info["params"]["c1"] == 3.0e5
+    from millvib_env.envs.scenarios import get_scenario
+
     for name in list_scenarios():
         _, info = env.reset(options={"scenario": name})
         assert info["scenario"] == name and info["disturbances"] == []
+        expected = get_scenario(name).plant()
+        assert info["params"]["c1"] == expected.c1 and info["params"]["Ct"] == expected.Ct
     with pytest.raises(ValueError, match="scenario"):
         env.reset(options={"scenario": "nope"})
     with pytest.raises(ValueError, match="MillParams.c1"):

@@ -24,6 +24,7 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
+from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.integrate import MAX_STEPS_PER_SECOND, DEFAULT_RTOL_FAST, state_scale
 from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KI, C_KP, C_UEXT, IPL, IV, IX, NAUX,
                                      NC, NPACK, NY, P_PF, P_PS, drive_vector, initial_state, pack)
@@ -115,7 +116,7 @@ class MillVibCore:
         self.zi = np.zeros((self.sos.shape[0], n, 2))
         self.vib_ema = np.zeros(n)
         self.sq_err_sum = np.zeros(n)
-        self.acc_trace = np.zeros((n, self.max_steps * self.n_samp))
+        self.acc_trace = np.zeros((n, self.max_steps * self.n_samp + 1))  # + the sample at t = 0
         self.n_trace = np.zeros(n, dtype=np.int64)
         self.last_action = np.zeros((n, self.act_dim))
         self.gains = np.zeros((n, 3))
@@ -182,6 +183,8 @@ class MillVibCore:
             from millvib_env.envs.scenarios import get_scenario
 
             sc = get_scenario(scenario)
+            # a scenario is a fixed plant: Table 1 (the config's base plant) plus its own changes
+            pinned.update({d.name: getattr(self.cfg.base_params, d.name) for d in self.cfg.randomize})
             pinned.update(sc.params)
             x0, jitter = sc.x0_m, 0.0
             if sc.quiet:
@@ -224,7 +227,9 @@ class MillVibCore:
         self.zi[:, i, :] = 0.0
         self.vib_ema[i] = 0.0
         self.sq_err_sum[i] = 0.0
-        self.n_trace[i] = 0
+        # the record starts at t = 0, as simulate()'s does (the paper's start is at rest: a = 0)
+        self.acc_trace[i, 0] = rhs_vector(0.0, self.Y[i], self.P[i], self.C[i])[IV]
+        self.n_trace[i] = 1
         self.last_action[i] = 0.0
         self.ep_return[i] = 0.0
         if i == 0:

@@ -1,0 +1,199 @@
+"""`millvib benchmark`: every controller on the same held-out plants and on every named scenario.
+
+Held-out plants: episode seeds ``seed, seed+1, ...`` (default 20000 and up, disjoint from training
+and tuning seeds); each seed fixes the plant (c1, Ct), the disturbances and the start, identically
+in both environment modes, so gain schedulers, valve policies and fixed PIDs meet the same plants.
+Per controller: mean, median and 95th-percentile severity (mm/s), ISO zone counts, mean tracking
+RMS (um), diverged rate and mean episode cost (severity / 4.5 mm/s + tracking RMS / 10 um).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from millvib_env._paths import atomic_path, write_text_atomic
+from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
+from millvib_env.envs.scenarios import list_scenarios
+from millvib_env.training.evaluate import COST_SCALES, run_episodes
+
+__all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_SEED", "DEFAULT_EPISODES"]
+
+DEFAULT_SEED = 20_000
+DEFAULT_EPISODES = 40
+
+
+def summarize(records: Sequence[dict]) -> dict:
+    sev = np.array([r["severity_mm_s"] for r in records], float)
+    trk = np.array([r["tracking_rms_um"] for r in records], float)
+    cost = np.array([r["cost"] for r in records], float)
+    zones = {z: int(sum(r["iso_zone"] == z for r in records)) for z in "ABCD"}
+    return {"severity_mean": float(np.mean(sev)), "severity_median": float(np.median(sev)),
+            "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
+            "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
+            "cost_median": float(np.median(cost)), "iso_zones": zones, "episodes": len(records)}
+
+
+def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = DEFAULT_EPISODES,
+                  seed: int = DEFAULT_SEED, env_id: str = "MillVib-GainSchedule-v0", scenarios: bool = True,
+                  progress: bool = True) -> dict:
+    names = list(controllers) if controllers else baseline_names() + list_agents()
+    loaded: dict[str, Controller] = {n: load_controller(n) for n in names}
+    seeds = list(range(seed, seed + episodes))
+    result: dict = {"controllers": {}, "seed": seed, "episodes": episodes, "env_id": env_id,
+                    "cost_scales": dict(COST_SCALES), "scenarios": {}, "records": {}}
+    start = time.time()
+    iterator = names
+    if progress:
+        from tqdm.auto import tqdm
+        iterator = tqdm(names, desc="benchmark", unit="controller")
+    for name in iterator:
+        ctrl = loaded[name]
+        ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
+        recs = run_episodes(ctrl, seeds, env_id=ctrl_env)
+        summary = summarize(recs)
+        summary["env_id"] = ctrl_env
+        result["controllers"][name] = summary
+        result["records"][name] = recs
+        if scenarios:
+            sc_recs = {}
+            for sc in list_scenarios():
+                rec = run_episodes(ctrl, [seed], scenario=sc, env_id=ctrl_env)[0]
+                sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
+                                                   "cost")}
+            result["scenarios"][name] = sc_recs
+    ref = result["records"].get("pid-robust")
+    if ref is not None:
+        stable = {r["seed"] for r in ref if not r["diverged"]}
+        for name, recs in result["records"].items():
+            result["controllers"][name]["diverged_where_pid_robust_stable"] = int(
+                sum(r["diverged"] and r["seed"] in stable for r in recs))
+    result["wall_time_s"] = round(time.time() - start, 1)
+    return result
+
+
+def format_table(result: dict) -> str:
+    lines = [f"Held-out plants: {result['episodes']} episodes, seeds {result['seed']}-"
+             f"{result['seed'] + result['episodes'] - 1}; cost = severity / {result['cost_scales']['severity_mm_s']} "
+             f"mm/s + tracking RMS / {result['cost_scales']['tracking_um']} um",
+             "",
+             "| controller | severity mean (mm/s) | median | p95 | tracking RMS mean (um) | zones A/B/C/D | "
+             "diverged | cost mean | cost median |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name, s in result["controllers"].items():
+        z = s["iso_zones"]
+        lines.append(f"| {name} | {s['severity_mean']:.2f} | {s['severity_median']:.2f} | {s['severity_p95']:.2f} | "
+                     f"{s['tracking_rms_um_mean']:.1f} | {z['A']}/{z['B']}/{z['C']}/{z['D']} | "
+                     f"{100 * s['diverged_rate']:.0f} % | {s['cost_mean']:.2f} | {s['cost_median']:.2f} |")
+    if result.get("scenarios"):
+        names = list(result["scenarios"])
+        scen = list(next(iter(result["scenarios"].values())))
+        lines += ["", "Named scenarios (severity mm/s / tracking RMS um):", "",
+                  "| scenario | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for sc in scen:
+            cells = []
+            for n in names:
+                r = result["scenarios"][n][sc]
+                cells.append(("diverged " if r["diverged"] else "") + f"{r['severity_mm_s']:.3g} / "
+                             f"{r['tracking_rms_um']:.3g}")
+            lines.append(f"| {sc} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def public_json(result: dict) -> dict:
+    """The summary without the per-episode records (those go to the CSV)."""
+    return {k: v for k, v in result.items() if k != "records"}
+
+
+def _write_outputs(result: dict, out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    buf = io.StringIO()
+    fields = ["controller", "seed", "c1", "Ct", "severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost",
+              "episode_return"]
+    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer.writeheader()
+    for name, recs in result["records"].items():
+        for r in recs:
+            writer.writerow({"controller": name, **r})
+    files.append(write_text_atomic(out / "episodes.csv", buf.getvalue()))
+    files.append(write_text_atomic(out / "benchmark.md", format_table(result) + "\n"))
+    files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
+    files.append(_plot_plane(result, out / "severity_plane.png"))
+    files.append(_plot_bars(result, out / "cost_bars.png"))
+    return files
+
+
+def _plot_plane(result: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    names = list(result["records"])
+    cols = min(3, len(names))
+    rows = math.ceil(len(names) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.8 * rows), squeeze=False)
+    all_sev = [r["severity_mm_s"] for recs in result["records"].values() for r in recs]
+    norm = LogNorm(vmin=max(min(all_sev), 1e-2), vmax=max(all_sev))
+    for ax, name in zip(axes.flat, names):
+        recs = result["records"][name]
+        sc = ax.scatter([r["Ct"] for r in recs], [r["c1"] for r in recs], c=[r["severity_mm_s"] for r in recs],
+                        norm=norm, cmap="magma_r", s=40, edgecolors="k", linewidths=0.3)
+        for r in recs:
+            if r["diverged"]:
+                ax.scatter(r["Ct"], r["c1"], marker="x", color="red", s=60)
+        s = result["controllers"][name]
+        ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
+               title=f"{name}: mean {s['severity_mean']:.3g} mm/s, cost {s['cost_mean']:.3g}")
+        ax.title.set_fontsize(9)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.8)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
+def _plot_bars(result: dict, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(result["controllers"])
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for ax, key, label in zip(axes, ("severity_mean", "tracking_rms_um_mean", "cost_mean"),
+                              ("mean severity (mm/s)", "mean tracking RMS (um)", "mean cost")):
+        ax.bar(range(len(names)), [result["controllers"][n][key] for n in names], color="tab:blue")
+        ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
+        ax.set_title(label)
+        ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
+def benchmark_from_cli(args) -> int:
+    result = run_benchmark(args.controllers, episodes=args.episodes, seed=args.seed, env_id=args.env,
+                           scenarios=not args.no_scenarios, progress=not args.quiet)
+    print(format_table(result))
+    print(f"\n({result['wall_time_s']} s)")
+    if args.json:
+        write_text_atomic(args.json, json.dumps(public_json(result), indent=2))
+        print(f"wrote {args.json}")
+    if args.out:
+        files = _write_outputs(result, Path(args.out))
+        print(f"wrote {len(files)} files to {args.out}")
+    return 0

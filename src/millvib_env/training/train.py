@@ -1,0 +1,169 @@
+"""`millvib train`: Stable-Baselines3 agents with rl-baselines3-zoo-style hyperparameters.
+
+configs/agents/<algo>.yml holds, per environment id: n_envs, n_timesteps, policy, normalize,
+optional env_kwargs, and the algorithm's keyword arguments (strings like "dict(...)" are evaluated
+as in the zoo). A run folder LOG_DIR/<algo>_<env>_s<seed>/ receives TensorBoard logs,
+checkpoints (model and VecNormalize statistics), the best model by periodic evaluation, and at
+the end model.zip, vecnormalize.pkl and card.json (command, seed, steps, wall time, evaluation).
+
+Seeds: training environments use seed * 100 + i, the evaluation environments 5000 + seed * 100 + i;
+PID tuning uses 10000-10999 and the benchmark 20000 and up, so held-out plants are never trained on.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from millvib_env._paths import config_dir, write_text_atomic
+from millvib_env._yaml import load_yaml
+
+__all__ = ["load_hyperparams", "train", "train_from_cli", "ALGOS"]
+
+ALGOS = ("ppo", "sac", "recurrentppo")
+TRAIN_SEED_STRIDE = 100
+EVAL_SEED_OFFSET = 5000
+
+
+def _algo_class(algo: str):
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO
+    if algo == "sac":
+        from stable_baselines3 import SAC
+        return SAC
+    if algo == "recurrentppo":
+        from sb3_contrib import RecurrentPPO
+        return RecurrentPPO
+    raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
+
+
+def _evaluate_string(value: Any) -> Any:
+    """Zoo-style: "dict(net_arch=[64, 64])" strings become objects (dict, nn activations only)."""
+    if not isinstance(value, str) or not re.match(r"^\s*dict\(", value):
+        return value
+    import torch.nn as nn
+
+    return eval(value, {"__builtins__": {}}, {"dict": dict, "nn": nn})  # noqa: S307 - config from the repo
+
+
+def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+    path = Path(path) if path else config_dir() / "agents" / f"{algo}.yml"
+    if not path.exists():
+        raise ValueError(f"hyperparameter file {path} not found")
+    table = load_yaml(path) or {}
+    if env_id not in table:
+        raise ValueError(f"{path} has no entry for {env_id!r}; it has {sorted(table)}")
+    hp = {k: _evaluate_string(v) for k, v in table[env_id].items()}
+    for key in ("n_envs", "n_timesteps", "policy"):
+        if key not in hp:
+            raise ValueError(f"{path} [{env_id}] is missing {key!r}")
+    return hp
+
+
+def _latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
+    ckpts = sorted(folder.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]))
+    if not ckpts:
+        return None
+    last = ckpts[-1]
+    steps = int(last.stem.split("_")[-2])
+    stats = folder / f"rl_model_vecnormalize_{steps}_steps.pkl"
+    return last, (stats if stats.exists() else None), steps
+
+
+def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, n_timesteps: int | None = None,
+          config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
+          eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
+          progress: bool = True, command: str | None = None) -> dict:
+    """Train one agent; returns its model card (also written to the run folder)."""
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from millvib_env.envs.vec_env import make_vec_env
+
+    algo = algo.lower()
+    cls = _algo_class(algo)
+    hp = load_hyperparams(algo, env_id, config)
+    n_envs = int(hp.pop("n_envs"))
+    total = int(n_timesteps if n_timesteps is not None else hp.pop("n_timesteps"))
+    hp.pop("n_timesteps", None)
+    policy = hp.pop("policy")
+    normalize = hp.pop("normalize", None)
+    env_kwargs = dict(hp.pop("env_kwargs", None) or {})
+    torch.set_num_threads(1)  # small networks: threads cost more than they give; the plant kernel has its own
+
+    run = Path(log_dir) / f"{algo}_{env_id}_s{seed}"
+    ckpt_dir = run / "checkpoints"
+    run.mkdir(parents=True, exist_ok=True)
+    venv = make_vec_env(env_id, n_envs, seed=seed * TRAIN_SEED_STRIDE, **env_kwargs)
+    eval_env = make_vec_env(env_id, n_eval_episodes, seed=EVAL_SEED_OFFSET + seed * TRAIN_SEED_STRIDE, **env_kwargs)
+    norm_kwargs = normalize if isinstance(normalize, dict) else ({} if normalize else None)
+    latest = _latest_checkpoint(ckpt_dir) if resume else None
+    if resume and latest is None:
+        raise ValueError(f"--resume: no checkpoint in {ckpt_dir}")
+    if norm_kwargs is not None:
+        if latest is not None and latest[1] is not None:
+            venv = VecNormalize.load(str(latest[1]), venv)
+        else:
+            venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
+                                                                                if k not in ("norm_reward",)})
+    if latest is not None:
+        model = cls.load(latest[0], env=venv, device="cpu", tensorboard_log=str(run / "tb"))
+        done_steps = latest[2]
+    else:
+        model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
+        done_steps = 0
+    callbacks = CallbackList([
+        CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True),
+        EvalCallback(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
+                     best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
+                     verbose=0),
+    ])
+    start = time.time()
+    model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
+                reset_num_timesteps=latest is None, tb_log_name=algo)
+    wall = time.time() - start
+    model.save(run / "model.zip")
+    if isinstance(venv, VecNormalize):
+        venv.save(str(run / "vecnormalize.pkl"))
+    evals = np.load(run / "eval" / "evaluations.npz") if (run / "eval" / "evaluations.npz").exists() else None
+    card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}", "algo": algo, "env_id": env_id,
+            "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
+            "wall_time_s": round(wall, 1), "command": command or f"millvib train --algo {algo} --env {env_id} "
+                                                                  f"--seed {seed}",
+            "hyperparameters": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else repr(v))
+                                for k, v in hp.items()},
+            "policy": policy, "normalize": repr(normalize),
+            "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
+    write_text_atomic(run / "card.json", json.dumps(card, indent=2))
+    if save_dir:
+        dest = Path(save_dir)
+        dest.mkdir(parents=True, exist_ok=True)
+        for name in ("model.zip", "vecnormalize.pkl"):
+            if (run / name).exists():
+                tmp = dest / f".{name}.tmp"
+                shutil.copyfile(run / name, tmp)
+                tmp.replace(dest / name)
+        card["name"] = dest.name
+        write_text_atomic(dest / "card.json", json.dumps(card, indent=2))
+    venv.close()
+    eval_env.close()
+    return card
+
+
+def train_from_cli(args) -> int:
+    card = train(args.algo, args.env, seed=args.seed, n_timesteps=args.n_timesteps, config=args.config,
+                 log_dir=args.log_dir, save_dir=args.save_dir, resume=args.resume, eval_freq=args.eval_freq,
+                 n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
+                 progress=not args.quiet, command="millvib " + " ".join(sys.argv[1:]))
+    print(json.dumps(card, indent=2))
+    return 0
