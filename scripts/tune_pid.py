@@ -38,7 +38,7 @@ def main() -> None:
     start = time.time()
     out: dict = {"cost": "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um, gain-schedule env "
                          "default config, gains held fixed",
-                 "search": "grid over log10 KP in 4..7 (step 0.25), KI in {-3, 2, 4..8}, KD in {0..4, log10 3e4}, "
+                 "search": "grid over log10 KP in 4..7 (step 0.25), KI in {-3, 2, 4..8}, KD in {0, 1, 1.5, 2, log10 300}, "
                            "then Nelder-Mead (60 iterations) from the best grid point"}
     print("tuning pid-nominal on the nominal plant ...")
     res = tune(NOMINAL_SEEDS, params={"c1": 2.25e6, "Ct": 5e-16})

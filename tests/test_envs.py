@@ -214,3 +214,39 @@ def test_ppo_trains_on_the_native_vec_env():
     model.learn(total_timesteps=2048)
     action, _ = model.predict(venv.reset(), deterministic=True)
     assert action.shape == (4, 3) and np.all(np.abs(action) <= 1)
+
+
+def test_gain_changes_are_bumpless_in_the_integral_term():
+    from millvib_env.plant.model import A_U, IUI, IV, IX
+
+    env = gym.make("MillVib-GainSchedule-v0", config="paper").unwrapped
+    env.reset(seed=0)
+    core = env.core
+    env.step(np.array([0.2, 0.8, 0.0]))  # a large KI: the integral term builds up
+    g_old = core.gains[0].copy()
+    y_end = core.Y[0].copy()
+    u_end = core.AUXS[0, -1, A_U]
+    assert abs(y_end[IUI]) > 1e-3
+    env.step(np.array([-0.5, -1.0, 0.5]))  # new gains, KI to its minimum
+    g_new = core.gains[0]
+    u_start = core.AUXS[0, 0, A_U]  # the command right after the change
+    e, v = -y_end[IX], y_end[IV]
+    assert core.YS[0, 0, IUI] == y_end[IUI]  # the integral term carries over unchanged
+    expected_jump = (g_new[0] - g_old[0]) * e - (g_new[2] - g_old[2]) * v
+    assert u_start - u_end == pytest.approx(expected_jump, rel=1e-9, abs=1e-9)
+
+
+def test_realistic_config_adds_noise_delay_and_eccentricity():
+    env = gym.make("MillVib-GainSchedule-v0", config="realistic").unwrapped
+    obs0, info = env.reset(seed=4)
+    assert env.core.delay == 1 and env.core.noise is not None
+    from millvib_env.plant.model import C_EA
+
+    assert env.core.C[0, C_EA] == env.core.profiles[0].ecc_amp_n > 0.0  # an eccentricity force was drawn
+    first, *_ = env.step(np.zeros(3))
+    assert np.array_equal(first, obs0)  # one-step delay: the first step shows the reset observation
+    second, *_ = env.step(np.zeros(3))
+    assert not np.array_equal(second, first)
+    quiet = gym.make("MillVib-GainSchedule-v0", config="realistic", disturbances={"sensor_noise": None}).unwrapped
+    quiet.reset(seed=4)
+    assert quiet.core.noise is None and quiet.params == env.params  # same plant, noise off

@@ -120,22 +120,26 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: float = 0.06) -> Path:
+def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: float = 0.06,
+                tail_s: float = 0.05) -> Path:
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
     for case, run in zip(study.cases, runs):
         k = run.t <= zoom_s
         axes[0].plot(run.t[k] * 1e3, run.x[k] * 1e3, label=case.label)
         axes[1].plot(run.t * 1e3, run.x * 1e3, lw=0.8, label=case.label)
         axes[2].plot(run.x * 1e3, run.v * 1e3, lw=0.6, label=case.label)
+        tail = run.t >= run.t[-1] - tail_s
+        axes[3].plot((run.x[tail] - run.x[tail].mean()) * 1e6, run.v[tail] * 1e3, lw=0.8, label=case.label)
     axes[0].set(xlabel="t (ms)", ylabel="x (mm)", title=f"(a) displacement, first {zoom_s * 1e3:.0f} ms")
     axes[1].set(xlabel="t (ms)", ylabel="x (mm)", title="(b) displacement, whole run")
-    axes[2].set(xlabel="x (mm)", ylabel="v (mm/s)", title="(c) phase portrait (displacement-velocity)")
+    axes[2].set(xlabel="x (mm)", ylabel="v (mm/s)", title="(c) phase portrait, whole run")
+    axes[3].set(xlabel="x - mean (um)", ylabel="v (mm/s)", title=f"(d) phase portrait, last {tail_s * 1e3:.0f} ms")
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"Study of {study.symbol} (paper {study.figures.split('-')[0]}): "
+    fig.suptitle(f"Study of {study.symbol} (paper {study.figures.split('-')[0].replace('Figs.', 'Fig.')}): "
                  "KP = %.3g, KI = %.3g, x0 = 1 mm" % (runs[0].gains.kp, runs[0].gains.ki))
     fig.tight_layout()
     path = _save(fig, out / f"study_{study.key}_time_phase.png")
@@ -157,8 +161,7 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
     ax.set_ylabel("vibration severity (mm/s RMS, 10-1000 Hz)")
     if max(vals) / max(min(vals), 1e-9) > 50:
         ax.set_yscale("log")
-    ax.set_title(f"Severity vs {study.symbol} (paper {study.figures.split('-')[-1].strip()})"
-                 if "-" in study.figures else study.symbol)
+    ax.set_title(f"Severity vs {study.symbol} (paper Fig. {study.figures.split('-')[-1].strip()})")
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     path = _save(fig, out / f"study_{study.key}_severity.png")

@@ -90,7 +90,7 @@ class GainScheduleEnv(MillVibEnv):
     |---|---|---|---|
     | 0 | KP | V/m | [1e4, 1e7] (the paper's 1e5 and 3.5e6 inside; the stability limit, 5e5-1.4e7, reached) |
     | 1 | KI | V/(m s) | [1e-3, 1e8] |
-    | 2 | KD | V s/m | [1, 3e4] (1 is negligible: derivative effectively off) |
+    | 2 | KD | V s/m | [1, 300] (1 is negligible: derivative effectively off; 300 keeps 0.5 um of position-sensor noise, differentiated over 1 kHz, near 1 V RMS on the valve) |
 
     The PID runs continuously inside the simulation (u = KP e + uI - KD v, derivative on the
     measurement). Its state holds the integral *term* uI, so a gain change is bumpless: the

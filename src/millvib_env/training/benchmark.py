@@ -22,7 +22,7 @@ import numpy as np
 from millvib_env._paths import atomic_path, write_text_atomic
 from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
 from millvib_env.envs.scenarios import list_scenarios
-from millvib_env.training.evaluate import COST_SCALES, run_episodes
+from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_SEED", "DEFAULT_EPISODES"]
 
@@ -128,7 +128,43 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
     files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
     files.append(_plot_plane(result, out / "severity_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
+    files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png", result["seed"]))
     return files
+
+
+#: the failure scenario whose time traces the benchmark draws (fixed PIDs against agents)
+TRACE_SCENARIO = "low-damping-high-leakage"
+
+
+def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TRACE_SCENARIO) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    for name in names:
+        tr = trace_episode(load_controller(name), scenario=scenario, seed=seed)
+        info = tr["info"]
+        label = f"{name}: {info['severity']:.3g} mm/s, {info['tracking_rms_um']:.3g} um"
+        axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label)
+        axes[1].plot(tr["t"] * 1e3, tr["v"] * 1e3, lw=0.6)
+        if len(tr["gains"]):
+            steps = np.arange(len(tr["gains"])) * tr["step_s"] * 1e3
+            axes[2].step(steps, np.log10(tr["gains"][:, 0]), where="post", lw=1.0)
+    axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
+                                       "fixed PIDs against agents")
+    axes[0].legend(fontsize=8)
+    axes[1].set(ylabel="v (mm/s)")
+    axes[2].set(ylabel="log10 KP", xlabel="t (ms)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[0].set_ylim(-600, 1050)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
 
 
 def _plot_plane(result: dict, path: Path) -> Path:

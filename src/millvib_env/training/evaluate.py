@@ -68,3 +68,41 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     if bar is not None:
         bar.close()
     return records  # type: ignore[return-value]
+
+
+def trace_episode(controller: Controller, *, scenario: str | None = None, seed: int = 0,
+                  env_kwargs: dict | None = None) -> dict:
+    """One episode with every plant sample kept: t, x, v, a, u (10 kHz) and, in gain mode, the gains
+    of every agent step (empty for valve policies)."""
+    from millvib_env.plant.model import A_ACC, A_U, IV, IX
+
+    kwargs = {**controller.env_kwargs, **(env_kwargs or {})}
+    venv = MillVibVecEnv(controller.env_id, 1, **kwargs)
+    venv._seeds = [seed]
+    if scenario is not None:
+        venv.set_options({"scenario": scenario})
+    obs = venv.reset()
+    controller.on_reset(venv.reset_infos, [0])
+    core = venv.core
+    parts: dict[str, list] = {"x": [core.Y[:1, IX].copy()], "v": [core.Y[:1, IV].copy()], "a": [np.zeros(1)],
+                              "u": [np.zeros(1)]}
+    gains, state, start = [], None, np.ones(1, dtype=bool)
+    while True:
+        action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
+        if core.mode == "gain":
+            gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0])
+        obs, _, done, infos = venv.step(action)
+        start = done
+        n = core.n_samp
+        parts["x"].append(core.YS[0, 1:n + 1, IX].copy())
+        parts["v"].append(core.YS[0, 1:n + 1, IV].copy())
+        parts["a"].append(core.AUXS[0, 1:n + 1, A_ACC].copy())
+        parts["u"].append(core.AUXS[0, 1:n + 1, A_U].copy())
+        if done[0]:
+            break
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["t"] = np.arange(out["x"].size) * core.dt_sample
+    out["gains"] = np.array(gains).reshape(-1, 3)
+    out["step_s"] = core.period_s
+    out["info"] = infos[0]
+    return out

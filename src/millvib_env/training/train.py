@@ -28,6 +28,8 @@ from millvib_env._yaml import load_yaml
 __all__ = ["load_hyperparams", "train", "train_from_cli", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
+#: validation plants for design decisions and model cards (never the benchmark's 20000 and up)
+VALIDATION_SEEDS = range(15_000, 15_040)
 TRAIN_SEED_STRIDE = 100
 EVAL_SEED_OFFSET = 5000
 
@@ -145,6 +147,8 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, 
             "policy": policy, "normalize": repr(normalize),
             "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
+    card["validation"] = validation_result(run, card)
+    write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if save_dir:
         dest = Path(save_dir)
         dest.mkdir(parents=True, exist_ok=True)
@@ -158,6 +162,20 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, 
     venv.close()
     eval_env.close()
     return card
+
+
+def validation_result(folder: str | Path, card: dict | None = None) -> dict:
+    """Mean severity, tracking and cost of the agent in `folder` on the validation plants."""
+    from millvib_env.control.policies import AgentPolicy
+    from millvib_env.training.benchmark import summarize
+    from millvib_env.training.evaluate import run_episodes
+
+    folder = Path(folder)
+    if card is not None:  # the card is written after this: give the loader what it needs
+        write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
+    summary = summarize(run_episodes(AgentPolicy(folder), list(VALIDATION_SEEDS)))
+    keep = ("severity_mean", "tracking_rms_um_mean", "cost_mean", "diverged_rate", "episodes")
+    return {"seeds": f"{VALIDATION_SEEDS.start}-{VALIDATION_SEEDS.stop - 1}", **{k: summary[k] for k in keep}}
 
 
 def train_from_cli(args) -> int:

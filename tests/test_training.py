@@ -1,0 +1,102 @@
+"""Controllers, agent training (smoke) and the benchmark."""
+import json
+
+import numpy as np
+import pytest
+
+from millvib_env.cli import main as cli_main
+from millvib_env.control.policies import FixedGainPolicy, OraclePolicy, list_agents, load_controller
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import MillVibCore
+from millvib_env.params import PIDGains
+from millvib_env.training.benchmark import public_json, run_benchmark
+from millvib_env.training.evaluate import run_episodes
+from millvib_env.training.train import train
+
+SCHEMA = {"severity_mean", "severity_median", "severity_p95", "tracking_rms_um_mean", "diverged_rate", "cost_mean",
+          "episodes"}
+
+TINY = """
+MillVib-GainSchedule-v0:
+  n_envs: 4
+  n_timesteps: 256
+  policy: {policy}
+  normalize: "dict(norm_obs=True, norm_reward=True)"
+{extra}
+"""
+EXTRA = {
+    "ppo": "  n_steps: 32\n  batch_size: 64\n  n_epochs: 1\n  policy_kwargs: \"dict(net_arch=[16])\"",
+    "sac": "  learning_starts: 64\n  batch_size: 32\n  buffer_size: 1000\n  policy_kwargs: \"dict(net_arch=[16])\"",
+    "recurrentppo": "  n_steps: 32\n  batch_size: 64\n  n_epochs: 1\n  policy_kwargs: \"dict(lstm_hidden_size=8)\"",
+}
+
+
+def test_fixed_gain_policy_holds_its_gains():
+    cfg = load_env_config("default")
+    core = MillVibCore(1, "gain", cfg)
+    pol = FixedGainPolicy("x", PIDGains(3e5, 1e4, 10.0), cfg)
+    action, _ = pol.predict(np.zeros((5, 8)))
+    assert action.shape == (5, 3)
+    np.testing.assert_allclose(core.gains_from_action(action[0]), [3e5, 1e4, 10.0], rtol=1e-5)
+
+
+def test_oracle_needs_and_uses_the_true_parameters():
+    oracle = load_controller("pid-oracle")
+    assert isinstance(oracle, OraclePolicy)
+    with pytest.raises(RuntimeError, match="true parameters"):
+        oracle.predict(np.zeros((1, 8)))
+    low, high = oracle.gains_for(1.25e5, 5e-16), oracle.gains_for(2.25e6, 5e-9)
+    assert low != high
+    recs = run_episodes(oracle, [1, 2])
+    assert all(np.isfinite(r["cost"]) for r in recs)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac", "recurrentppo"])
+def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo):
+    policy = "MlpLstmPolicy" if algo == "recurrentppo" else "MlpPolicy"
+    cfg = tmp_path / f"{algo}.yml"
+    cfg.write_text(TINY.format(policy=policy, extra=EXTRA[algo]))
+    kw = dict(config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2,
+              checkpoint_freq=128, progress=False)
+    card = train(algo, seed=3, save_dir=str(tmp_path / "agent"), **kw)
+    assert card["n_timesteps"] >= 256 and card["seed"] == 3
+    for name in ("model.zip", "vecnormalize.pkl", "card.json"):
+        assert (tmp_path / "agent" / name).exists()
+    agent = load_controller(str(tmp_path / "agent"))
+    recs = run_episodes(agent, [0, 1])
+    assert all(np.isfinite(r["cost"]) for r in recs)
+    resumed = train(algo, seed=3, n_timesteps=512, resume=True, **kw)
+    assert resumed["n_timesteps"] >= 512
+
+
+def test_benchmark_is_deterministic_and_has_the_schema():
+    a = public_json(run_benchmark(["pid-paper", "pid-robust"], episodes=4, progress=False))
+    b = public_json(run_benchmark(["pid-paper", "pid-robust"], episodes=4, progress=False))
+    assert a["controllers"] == b["controllers"]
+    assert {"controllers", "seed", "episodes", "env_id"} <= set(a)
+    for summary in a["controllers"].values():
+        assert SCHEMA <= set(summary) and summary["episodes"] == 4
+
+
+def test_benchmark_cli_writes_json_and_outputs(tmp_path):
+    out = tmp_path / "bench.json"
+    rc = cli_main(["benchmark", "--controllers", "pid-paper", "--episodes", "3", "--quiet", "--json", str(out),
+                   "--out", str(tmp_path / "out")])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert SCHEMA <= set(data["controllers"]["pid-paper"])
+    for name in ("episodes.csv", "benchmark.md", "severity_plane.png", "cost_bars.png"):
+        assert (tmp_path / "out" / name).exists()
+
+
+@pytest.mark.parametrize("name", list_agents())
+def test_shipped_agents_load_and_run(name):
+    agent = load_controller(name)
+    assert {"algo", "env_id", "seed", "n_timesteps", "wall_time_s", "command"} <= set(agent.card)
+    recs = run_episodes(agent, [20_000, 20_001])
+    assert all(np.isfinite(r["cost"]) for r in recs)
+
+
+def test_default_benchmark_covers_the_shipped_agents():
+    agents = list_agents()
+    assert len(agents) >= 2, "the PPO and SAC gain schedulers are shipped under agents/"
