@@ -21,7 +21,7 @@ import numpy as np
 
 from millvib_env._paths import atomic_path, write_text_atomic
 from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
-from millvib_env.envs.scenarios import list_scenarios
+from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_SEED", "DEFAULT_EPISODES"]
@@ -39,6 +39,18 @@ def summarize(records: Sequence[dict]) -> dict:
             "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
             "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
             "cost_median": float(np.median(cost)), "iso_zones": zones, "episodes": len(records)}
+
+
+def distinct_plant_scenarios() -> list[str]:
+    """The named scenarios with distinct plants (a scenario's own fixed PID plays no part here)."""
+    seen, names = set(), []
+    for name in list_scenarios():
+        sc = get_scenario(name)
+        key = (tuple(sorted(sc.params.items())), sc.x0_m)
+        if key not in seen:
+            seen.add(key)
+            names.append(name)
+    return names
 
 
 def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = DEFAULT_EPISODES,
@@ -64,7 +76,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = D
         result["records"][name] = recs
         if scenarios:
             sc_recs = {}
-            for sc in list_scenarios():
+            for sc in distinct_plant_scenarios():
                 rec = run_episodes(ctrl, [seed], scenario=sc, env_id=ctrl_env)[0]
                 sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
                                                    "cost")}
@@ -95,7 +107,7 @@ def format_table(result: dict) -> str:
     if result.get("scenarios"):
         names = list(result["scenarios"])
         scen = list(next(iter(result["scenarios"].values())))
-        lines += ["", "Named scenarios (severity mm/s / tracking RMS um):", "",
+        lines += ["", "Named scenarios with distinct plants, one episode each (severity mm/s / tracking RMS um):", "",
                   "| scenario | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
         for sc in scen:
             cells = []
@@ -143,20 +155,21 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TR
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
-    for name in names:
+    for k, name in enumerate(names):
+        color = f"C{k % 10}"
         tr = trace_episode(load_controller(name), scenario=scenario, seed=seed)
         info = tr["info"]
         label = f"{name}: {info['severity']:.3g} mm/s, {info['tracking_rms_um']:.3g} um"
-        axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label)
-        axes[1].plot(tr["t"] * 1e3, tr["v"] * 1e3, lw=0.6)
+        axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label, color=color)
+        axes[1].plot(tr["t"] * 1e3, tr["v"] * 1e3, lw=0.6, color=color)
         if len(tr["gains"]):
             steps = np.arange(len(tr["gains"])) * tr["step_s"] * 1e3
-            axes[2].step(steps, np.log10(tr["gains"][:, 0]), where="post", lw=1.0)
+            axes[2].step(steps, np.log10(tr["gains"][:, 0]), where="post", lw=1.0, color=color)
     axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
                                        "fixed PIDs against agents")
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
-    axes[2].set(ylabel="log10 KP", xlabel="t (ms)")
+    axes[2].set(ylabel="log10 KP (gain schedulers)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[0].set_ylim(-600, 1050)
@@ -177,7 +190,7 @@ def _plot_plane(result: dict, path: Path) -> Path:
     names = list(result["records"])
     cols = min(3, len(names))
     rows = math.ceil(len(names) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.8 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 4.2 * rows), squeeze=False, layout="constrained")
     all_sev = [r["severity_mm_s"] for recs in result["records"].values() for r in recs]
     norm = LogNorm(vmin=max(min(all_sev), 1e-2), vmax=max(all_sev))
     for ax, name in zip(axes.flat, names):
@@ -189,11 +202,11 @@ def _plot_plane(result: dict, path: Path) -> Path:
                 ax.scatter(r["Ct"], r["c1"], marker="x", color="red", s=60)
         s = result["controllers"][name]
         ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
-               title=f"{name}: mean {s['severity_mean']:.3g} mm/s, cost {s['cost_mean']:.3g}")
+               title=f"{name}\nmean {s['severity_mean']:.3g} mm/s, cost {s['cost_mean']:.3g}")
         ax.title.set_fontsize(9)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
-    fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.8)
+    fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.6)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
