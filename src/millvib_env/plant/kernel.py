@@ -4,10 +4,10 @@ The fast scheme is the Bogacki-Shampine 3(2) pair (the method behind MATLAB's od
 step, FSAL (3 new right-hand-side evaluations per step), error per component against
 ``atol_i + rtol |y_i|``, and cubic Hermite dense output so samples never force small steps. It
 was chosen by measurement against a tight LSODA reference over the paper's cases and the
-unstable corner (see ``docs/integrators.md``): fixed-step RK4 needs h <= 6e-6 s to stay stable in
-the limit cycles at high KP and low c1 (the LuGre bristle rate sigma0 |v| / g(v) reaches 8e5 1/s
-there), exponential (Lawson) treatment of the bristle state cost more steps than it saved, and
-Dormand-Prince 5(4) took 2-3x the time of BS3(2) at the accuracy we need.
+unstable corner (`scripts/integrator_study.py`): fixed-step RK4 needs h <= 6e-6 s at high KP and
+still loses the limit cycles (the LuGre bristle rate sigma0 |v| / g(v) reaches 8e5 1/s there),
+Dormand-Prince 5(4) is close on smooth cases but 1.6x slower in the limit cycles, and a
+Rosenbrock 2(3) pays more for its Jacobian than it saves.
 
 Samples: the kernels write the state at the sample times ``t_base + k dt_s`` that fall in each
 integrated interval (cubic Hermite between steps); the auxiliary outputs (a, u, xv, QL, Ff, ps)
