@@ -42,7 +42,7 @@ def _median_wall(fn: Callable[[], float], repeats: int) -> float:
     return statistics.median(fn() for _ in range(repeats))
 
 
-def bench_plant(*, t_end: float = 1.0, repeats: int = 3, batch_size: int = 256, batch_t_end: float = 1.0,
+def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, batch_t_end: float = 1.0,
                 progress: bool = True) -> dict:
     simulate(t_end=0.01)  # compile or load the kernels outside the timings
     simulate(t_end=0.01, method="reference")

@@ -215,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
         "throughput over 256 random plants; and environment steps per second (native VecEnv vs SB3 "
         "DummyVecEnv)."))
     p.add_argument("--t-end", type=float, default=1.0, help="simulated time per case, s (default 1.0)")
-    p.add_argument("--repeats", type=int, default=3, help="timing repeats per case, median taken (default 3)")
+    p.add_argument("--repeats", type=int, default=5, help="timing repeats per case, median taken (default 5)")
     p.add_argument("--plant-only", action="store_true", help="skip the environment benchmark")
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
