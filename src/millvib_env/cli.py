@@ -78,7 +78,7 @@ def _plot_run(run, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from millvib_env._paths import atomic_path
+    from millvib_env._paths import save_figure
 
     fig, ax = plt.subplots(2, 2, figsize=(11, 6.5))
     ax[0, 0].plot(run.t * 1e3, run.x * 1e3)
@@ -99,9 +99,7 @@ def _plot_run(run, path: Path) -> None:
         title += f": severity {run.severity():.3g} mm/s (zone {run.iso_zone()})"
     fig.suptitle(title)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _write_run_csv(run, path: Path) -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from millvib_env._paths import atomic_path, write_text_atomic
+from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant.integrate import SimResult, simulate_batch
@@ -114,12 +114,6 @@ def run_studies(t_end: float = 1.0, method: str = "fast") -> tuple[list[CaseResu
     return results, runs
 
 
-def _save(fig, path: Path) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip("."))
-    return path
-
-
 def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: float = 0.06,
                 tail_s: float = 0.05) -> Path:
     import matplotlib.pyplot as plt
@@ -142,8 +136,7 @@ def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: flo
     fig.suptitle(f"Study of {study.symbol} (paper {study.figures.split('-')[0].replace('Figs.', 'Fig.')}): "
                  "KP = %.3g, KI = %.3g, x0 = 1 mm" % (runs[0].gains.kp, runs[0].gains.ki))
     fig.tight_layout()
-    path = _save(fig, out / f"study_{study.key}_time_phase.png")
-    plt.close(fig)
+    path = save_figure(fig, out / f"study_{study.key}_time_phase.png")
     return path
 
 
@@ -164,8 +157,7 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
     ax.set_title(f"Severity vs {study.symbol} (paper Fig. {study.figures.split('-')[-1].strip()})")
     ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    path = _save(fig, out / f"study_{study.key}_severity.png")
-    plt.close(fig)
+    path = save_figure(fig, out / f"study_{study.key}_severity.png")
     return path
 
 
@@ -210,8 +202,7 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
     ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
-    png = _save(fig, out / "motion_map_c1_kp.png")
-    plt.close(fig)
+    png = save_figure(fig, out / "motion_map_c1_kp.png")
     csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
     return png, csv_path
 
@@ -246,8 +237,7 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool) -> tuple[
     axes[0].set_title("Critical KP vs damping (KI = 0.001)")
     axes[1].set_title("Critical KP vs leakage (KI = 0.001)")
     fig.tight_layout()
-    png = _save(fig, out / "stability_map.png")
-    plt.close(fig)
+    png = save_figure(fig, out / "stability_map.png")
     rows = [{"c1": f"{c1s[i]:.6g}", "Ct": f"{cts[j]:.6g}", "kp_crit_stick": f"{stick[i, j]:.6g}",
              "kp_crit_sliding": f"{slide[i, j]:.6g}"} for i in range(n_c1) for j in range(n_ct)]
     return png, _write_csv(out / "stability_map.csv", rows)

@@ -21,6 +21,7 @@ import numpy as np
 from millvib_env._paths import agents_dir, config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.config import EnvConfig, load_env_config
+from millvib_env.envs.core import action_from_gains
 from millvib_env.params import PAPER_GAINS, PIDGains
 
 __all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "AgentPolicy", "gains_to_action", "load_controller",
@@ -31,11 +32,7 @@ PID_NAMES = ("pid-paper", "pid-nominal", "pid-robust", "pid-oracle")
 
 def gains_to_action(gains: Sequence[float], config: EnvConfig | None = None) -> np.ndarray:
     """The gain-schedule action in [-1, 1]^3 that maps to (KP, KI, KD) (clipped to the bounds)."""
-    cfg = config or load_env_config("default")
-    lo = np.log10([cfg["actions"][k][0] for k in ("kp", "ki", "kd")])
-    hi = np.log10([cfg["actions"][k][1] for k in ("kp", "ki", "kd")])
-    logs = np.log10(np.maximum(np.asarray(gains, dtype=np.float64), 1e-300))
-    return np.clip(2.0 * (logs - lo) / (hi - lo) - 1.0, -1.0, 1.0).astype(np.float32)
+    return action_from_gains(gains, config or load_env_config("default")).astype(np.float32)
 
 
 class Controller:

@@ -17,6 +17,7 @@ from scipy import optimize
 
 from millvib_env.control.policies import Controller, gains_to_action
 from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import log_gain_bounds
 from millvib_env.training.evaluate import run_episodes
 
 __all__ = ["TUNING_SEEDS", "GRID", "TuneResult", "mean_costs", "tune", "ActionTable"]
@@ -86,9 +87,7 @@ class TuneResult:
 
 def tune(seeds: Sequence[int], *, params: dict | None = None, grid=GRID, refine_iters: int = 60) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
-    cfg = load_env_config("default")
-    lo = np.log10([cfg["actions"][k][0] for k in ("kp", "ki", "kd")])
-    hi = np.log10([cfg["actions"][k][1] for k in ("kp", "ki", "kd")])
+    lo, hi = log_gain_bounds(load_env_config("default"))
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
     mesh = np.clip(mesh, lo, hi)
     grid_costs = mean_costs(mesh, seeds, params=params)

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore

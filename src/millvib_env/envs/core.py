@@ -30,7 +30,8 @@ from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KI, C
                                      NC, NPACK, NY, P_PF, P_PS, drive_vector, initial_state, pack)
 from millvib_env.severity import iso_zone, vibration_severity
 
-__all__ = ["MillVibCore", "slog", "GAIN_NAMES", "OBS_SCALES", "PARAM_OBS_RANGES"]
+__all__ = ["MillVibCore", "slog", "GAIN_NAMES", "OBS_SCALES", "PARAM_OBS_RANGES", "action_from_gains",
+           "log_gain_bounds"]
 
 #: with observe_params, log c1 and log Ct are mapped linearly from these ranges to [-1, 1]
 PARAM_OBS_RANGES = {"c1": (1.25e5, 2.25e6), "Ct": (5e-16, 5e-9)}
@@ -38,6 +39,19 @@ PARAM_OBS_RANGES = {"c1": (1.25e5, 2.25e6), "Ct": (5e-16, 5e-9)}
 RENDER_WINDOW_S = 0.1
 
 GAIN_NAMES = ("kp", "ki", "kd")
+
+
+def log_gain_bounds(config: EnvConfig) -> tuple[np.ndarray, np.ndarray]:
+    """log10 of the (KP, KI, KD) bounds of the gain-schedule action (config section `actions`)."""
+    acts = config["actions"]
+    return np.log10([acts[k][0] for k in GAIN_NAMES]), np.log10([acts[k][1] for k in GAIN_NAMES])
+
+
+def action_from_gains(gains, config: EnvConfig) -> np.ndarray:
+    """The gain-schedule action in [-1, 1]^3 that maps to (KP, KI, KD); gains outside the bounds clip."""
+    lo, hi = log_gain_bounds(config)
+    logs = np.log10(np.maximum(np.asarray(gains, dtype=np.float64), 1e-300))
+    return np.clip(2.0 * (logs - lo) / (hi - lo) - 1.0, -1.0, 1.0)
 
 
 def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
@@ -77,8 +91,7 @@ class MillVibCore:
         self.disturbances, self.noise, self.delay = build_disturbances(raw["disturbances"])
 
         acts = raw["actions"]
-        self.gain_lo = np.log10([acts[k][0] for k in GAIN_NAMES])
-        self.gain_hi = np.log10([acts[k][1] for k in GAIN_NAMES])
+        self.gain_lo, self.gain_hi = log_gain_bounds(config)
         self.u_range = float(acts["residual_range_v"] if self.residual else acts["u_range_v"])
         self.residual_gains = PIDGains(*acts["residual_gains"])
         self.act_dim = 3 if mode == "gain" else 1
@@ -153,8 +166,7 @@ class MillVibCore:
 
     def action_from_gains(self, gains: np.ndarray) -> np.ndarray:
         """Inverse of `gains_from_action` (gains outside the bounds are clipped)."""
-        logs = np.log10(np.maximum(np.asarray(gains, dtype=np.float64), 1e-300))
-        return np.clip(2.0 * (logs - self.gain_lo) / (self.gain_hi - self.gain_lo) - 1.0, -1.0, 1.0)
+        return action_from_gains(gains, self.cfg)
 
     # ------------------------------------------------------------------------------------------
     def seed_env(self, i: int, seed: int | None) -> None:

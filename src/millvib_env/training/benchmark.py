@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from millvib_env._paths import atomic_path, write_text_atomic
+from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
@@ -174,10 +174,7 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TR
         ax.grid(alpha=0.3)
     axes[0].set_ylim(-600, 1050)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _plot_plane(result: dict, path: Path) -> Path:
@@ -207,10 +204,7 @@ def _plot_plane(result: dict, path: Path) -> Path:
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.6)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _plot_bars(result: dict, path: Path) -> Path:
@@ -228,10 +222,7 @@ def _plot_bars(result: dict, path: Path) -> Path:
         ax.set_title(label)
         ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def benchmark_from_cli(args) -> int:
