@@ -35,7 +35,7 @@ from scipy import optimize
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.integrate import state_scale
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import IPL, IUI, IV, IX, IZ, NY, drive_vector, pack
+from millvib_env.plant.model import IPL, IUI, IV, IX, IZ, NY, balanced_pressure, drive_vector, pack
 
 __all__ = ["OperatingPoint", "operating_point", "jacobian", "spectral_abscissa", "critical_kp",
            "stability_map"]
@@ -65,14 +65,6 @@ def _rhs(params: MillParams, gains: PIDGains, xd: float):
     return lambda y: rhs_vector(0.0, y, p, c)
 
 
-def _balanced_pressure(f, y: np.ndarray) -> float:
-    """pL that zeroes the acceleration at state y (the force balance is linear in pL)."""
-    y0, y1 = y.copy(), y.copy()
-    y0[IPL], y1[IPL] = 0.0, 1.0e7
-    a0, a1 = f(y0)[IV], f(y1)[IV]
-    return -a0 * 1.0e7 / (a1 - a0)
-
-
 def _bracket_root(fun, center: float, lo: float, hi: float) -> float:
     """Root of fun in (lo, hi), bracketed by stepping out from `center` on a log scale."""
     f0 = fun(center)
@@ -99,12 +91,14 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     if integral not in ("frozen", "settled"):
         raise ValueError(f"integral = {integral!r} is invalid: use 'frozen' or 'settled'")
     f = _rhs(params, gains, xd)
+    p_mean = pack(params.replace(pulse_amp=0.0))
+    c = drive_vector(gains, xd=xd)
     y = np.array([xd, 0.0, 0.0, 0.0 if friction == "stick" else params.fs / params.sigma0, uI])
 
     def at(value: float) -> np.ndarray:
         yy = y.copy()
         yy[IX if integral == "frozen" else IUI] = value
-        yy[IPL] = _balanced_pressure(f, yy)
+        yy[IPL] = balanced_pressure(yy, p_mean, c)
         return yy
 
     def flow_residual(value: float) -> float:

@@ -255,8 +255,10 @@ def format_table(results: list[CaseResult]) -> str:
     head = "| study | case | severity (mm/s) | ISO zone | motion (tail) | amplitude (um) | f (Hz) | tracking RMS (um) |"
     lines = [head, "|---|---|---|---|---|---|---|---|"]
     for r in results:
+        # a decayed tail's residual is integration noise (< 1e-3 um): no amplitude or frequency to show
+        amp, freq = ("-", "-") if r.motion == "decay" else (f"{r.amplitude_um:.3g}", f"{r.frequency_hz:.0f}")
         lines.append(f"| {r.study} | {r.label} | {r.severity_mm_s:.3f} | {r.iso_zone} | {r.motion} | "
-                     f"{r.amplitude_um:.3g} | {r.frequency_hz:.0f} | {r.tracking_rms_um:.1f} |")
+                     f"{amp} | {freq} | {r.tracking_rms_um:.1f} |")
     return "\n".join(lines)
 
 

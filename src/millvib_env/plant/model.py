@@ -185,11 +185,18 @@ def drive_vector(gains: PIDGains, xd: float = 0.0, u_ext: float = 0.0, pid_on: b
     return c
 
 
-def equilibrium_pressure(params: MillParams, x: float, friction: float | None = None,
-                         force_offset: float = 0.0) -> float:
-    """Chamber pressure that gives zero acceleration at rest at displacement x (Eq. 8, v = 0)."""
-    ff = params.fs if friction is None else friction
-    return (params.k1 * x + ff + params.FL + force_offset + params.Ab * params.pb) / params.Ap
+def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.0) -> float:
+    """Chamber pressure pL that gives zero acceleration in state y (Eq. 8 is linear in pL).
+
+    Solved with `plant_rhs` itself (two evaluations), so the force balance is written only once.
+    """
+    dy, aux = np.empty(NY), np.empty(NAUX)
+    ya, yb = y.copy(), y.copy()
+    ya[IPL], yb[IPL] = 0.0, p[P_PS]
+    plant_rhs(t, ya, p, c, dy, aux)
+    acc_a = dy[IV]
+    plant_rhs(t, yb, p, c, dy, aux)
+    return -acc_a * p[P_PS] / (dy[IV] - acc_a)
 
 
 def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> np.ndarray:
@@ -200,7 +207,7 @@ def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> n
     """
     y0 = np.zeros(NY)
     y0[IX] = x0
-    y0[IPL] = equilibrium_pressure(params, x0)
     y0[IZ] = params.fs / params.sigma0
     y0[IUI] = uI0
+    y0[IPL] = balanced_pressure(y0, pack(params), np.zeros(NC))
     return y0
