@@ -24,7 +24,7 @@ from scipy.integrate import solve_ivp
 
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.model import (AUX_NAMES, IPL, IX, NY, P_L, P_L1, STATE_NAMES, drive_vector,
+from millvib_env.plant.model import (AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, drive_vector,
                                      initial_state, pack)
 from millvib_env.severity import iso_zone, vibration_severity
 
@@ -308,8 +308,6 @@ def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress)
 
 
 def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max):
-    from millvib_env.plant.model import C_XD
-
     atol = rtol * state_scale(params)
     lo, hi = -p[P_L1], p[P_L] - p[P_L1]
 

@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from millvib_env.plant.model import C_DFL, C_XD, NAUX, NC, NY, plant_rhs, state_ok
+from millvib_env.plant.model import C_DFL, C_XD, NAUX, NY, plant_rhs, state_ok
 
 OK, LEFT_ENVELOPE, STEP_UNDERFLOW, STEP_BUDGET = 0, 1, 2, 3
 STATUS_TEXT = {OK: "ok", LEFT_ENVELOPE: "left the physical envelope (non-finite state, stroke or pressure)",
@@ -256,4 +256,4 @@ def rhs_vector(t, y, p, c):
 
 
 __all__ = ["advance", "advance_batch", "simulate_one", "simulate_batch_kernel", "aux_at", "rhs_vector",
-           "STATUS_TEXT", "NC"]
+           "STATUS_TEXT"]
