@@ -24,11 +24,19 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, kwargs):
 
 
 @pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v0", "MillVib-Valve-v0"])
-def test_registration_sets_the_episode_length(env_id):
-    spec = gym.spec(env_id)
-    env = gym.make(env_id)
-    assert spec.max_episode_steps == env.unwrapped.core.max_steps
-    assert spec.max_episode_steps == (50 if "Gain" in env_id else 500)
+@pytest.mark.parametrize("config, seconds", [("startup", 0.5), ("rolling", 1.0)])
+def test_episodes_truncate_at_the_configs_length(env_id, config, seconds):
+    env = gym.make(env_id, config=config)
+    assert gym.spec(env_id).max_episode_steps is None  # no registered TimeLimit: the env ends its episodes
+    period = 0.01 if "Gain" in env_id else 0.001
+    env.reset(seed=0)
+    action = np.zeros(env.action_space.shape)
+    steps, done = 0, False
+    while not done:
+        _, _, term, trunc, _ = env.step(action)
+        steps += 1
+        done = term or trunc
+    assert trunc and not term and steps == round(seconds / period)
 
 
 def rollout(env, seed, actions):
@@ -58,6 +66,7 @@ def test_seeded_resets_reproduce_episodes_exactly():
 def test_c1_and_ct_spread_log_uniformly_over_their_ranges():
     venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 1, seed=7, monitor=False)
     core = venv.core
+    core.seed_env(0, 7)  # reset_env below bypasses the VecEnv's pending seed
     c1, ct = [], []
     for _ in range(400):
         _, info = core.reset_env(0)
@@ -239,7 +248,7 @@ def test_gain_changes_are_bumpless_in_the_integral_term():
 def test_realistic_config_adds_noise_delay_and_eccentricity():
     env = gym.make("MillVib-GainSchedule-v0", config="realistic").unwrapped
     obs0, info = env.reset(seed=4)
-    assert env.core.delay == 1 and env.core.noise is not None
+    assert env.core.observer.delay == 1 and env.core.observer.noise is not None
     from millvib_env.plant.model import C_EA
 
     assert env.core.C[0, C_EA] == env.core.profiles[0].ecc_amp_n > 0.0  # an eccentricity force was drawn
@@ -249,4 +258,4 @@ def test_realistic_config_adds_noise_delay_and_eccentricity():
     assert not np.array_equal(second, first)
     quiet = gym.make("MillVib-GainSchedule-v0", config="realistic", disturbances={"sensor_noise": None}).unwrapped
     quiet.reset(seed=4)
-    assert quiet.core.noise is None and quiet.params == env.params  # same plant, noise off
+    assert quiet.core.observer.noise is None and quiet.params == env.params  # same plant, noise off

@@ -11,17 +11,15 @@ __all__ = ["MillParams", "PIDGains", "PAPER_GAINS", "load_preset", "__version__"
 
 
 def _register_envs() -> None:
+    """Register the two ids. The environments truncate their episodes themselves (after the
+    config's episode_s), so no TimeLimit is registered: one would cut a 1 s `rolling` episode at
+    the 0.5 s `startup` length."""
     import gymnasium
 
-    from millvib_env.envs.config import load_env_config
-
-    default = load_env_config("default")
-    steps = {"gain": round(default.episode_s / default.decision_dt_s),
-             "valve": round(default.episode_s / default.control_dt_s)}
-    for env_id, entry, mode in (("MillVib-GainSchedule-v0", "millvib_env.envs.base:GainScheduleEnv", "gain"),
-                                ("MillVib-Valve-v0", "millvib_env.envs.base:ValveEnv", "valve")):
+    for env_id, entry in (("MillVib-GainSchedule-v0", "millvib_env.envs.base:GainScheduleEnv"),
+                          ("MillVib-Valve-v0", "millvib_env.envs.base:ValveEnv")):
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry, max_episode_steps=steps[mode])
+            gymnasium.register(id=env_id, entry_point=entry)
 
 
 _register_envs()

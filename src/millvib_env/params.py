@@ -172,15 +172,18 @@ class PIDGains:
     """PID gains of the position loop, paper Eq. (11): u = KP e + KI int(e) dt + KD de/dt.
 
     Units: kp in V/m, ki in V/(m s), kd in V s/m (u is the servo-amplifier input in volts,
-    e = xd - x in metres). All must be finite and >= 0.
+    e = xd - x in metres). All must be finite and >= 0. `kpl` (V/Pa, default 0: the paper's loop)
+    adds pressure feedback, u -= KPL (pL - pL_ref), the textbook active damping of a hydraulic
+    servo; `to_array` gives (KP, KI, KD) only.
     """
 
     kp: float
     ki: float = 0.0
     kd: float = 0.0
+    kpl: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("kp", "ki", "kd"):
+        for name in ("kp", "ki", "kd", "kpl"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
                 raise ValueError(f"PIDGains.{name} = {value!r} is invalid: must be a real number >= 0")

@@ -59,9 +59,11 @@ def classify_motion(result: SimResult, *, tail: float = 0.4, tol: float = 0.02, 
     x = result.x[int(n * (1 - tail)):]
     fs = 1.0 / result.dt
     half = x.size // 2
-    vib = vibration_severity(x, fs, quantity="displacement")
-    shrinking = (vibration_severity(x[half:], fs, quantity="displacement")
-                 < DECAY_RATIO * vibration_severity(x[:half], fs, quantity="displacement"))
+    # the severity band, its low edge raised where the tail's halves are shorter than 0.1 s
+    band = (max(10.0, fs / half), 1000.0)
+    vib = vibration_severity(x, fs, quantity="displacement", band=band)
+    shrinking = (vibration_severity(x[half:], fs, quantity="displacement", band=band)
+                 < DECAY_RATIO * vibration_severity(x[:half], fs, quantity="displacement", band=band))
     xb = ssig.detrend(x)
     ptp = float(np.ptp(xb))
     spec = np.abs(np.fft.rfft(xb * np.hanning(xb.size)))

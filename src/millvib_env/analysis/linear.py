@@ -35,10 +35,11 @@ from scipy import optimize
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.integrate import state_scale
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import IPL, IUI, IV, IX, IZ, NY, balanced_pressure, drive_vector, pack
+from millvib_env.plant.model import (IPL, IUI, IV, IX, IZ, NY, balanced_pressure, drive_vector, pack,
+                                     settled_state)
 
 __all__ = ["OperatingPoint", "operating_point", "jacobian", "spectral_abscissa", "critical_kp",
-           "stability_map"]
+           "stability_map", "StateSpace", "linearize"]
 
 Friction = Literal["stick", "sliding"]
 
@@ -111,21 +112,13 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     return OperatingPoint(y=at(root), xd=xd, friction=friction, integral=integral)
 
 
-def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndarray:
-    """Numerical Jacobian of the loop at `op` (central differences; one-sided in v when sliding).
-
-    Returns the matrix over (x, v, pL) plus uI when the integral is settled and KI > 0. The
-    bristle state z is eliminated: when stuck it moves with x (folded into x), when sliding its
-    row vanishes (saturated bristles).
-    """
-    f = _rhs(params, gains, op.xd)
-    y0 = op.y
-    scale = state_scale(params)
+def _numerical_jacobian(f, y0: np.ndarray, scale: np.ndarray, friction: str) -> np.ndarray:
+    """d f / d y at y0 over all NY states (central differences; one-sided in v when sliding)."""
     J = np.zeros((NY, NY))
     f0 = f(y0)
     for j in range(NY):
         d = 1e-6 * scale[j]
-        if op.friction == "sliding" and j == IV:
+        if friction == "sliding" and j == IV:
             yp = y0.copy()
             yp[j] += d
             J[:, j] = (f(yp) - f0) / d
@@ -134,13 +127,92 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
             yp[j] += d
             ym[j] -= d
             J[:, j] = (f(yp) - f(ym)) / (2 * d)
-    if op.friction == "stick":
+    if friction == "stick":
         # stuck bristles move with the piston (dz/dt = dx/dt = v), so z - x is conserved: fold z
         # into x (the bristle spring then acts on x) and drop the structural zero eigenvalue
         J[:, IX] += J[:, IZ]
+    return J
+
+
+def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndarray:
+    """Numerical Jacobian of the loop at `op` (central differences; one-sided in v when sliding).
+
+    Returns the matrix over (x, v, pL) plus uI when the integral is settled and KI > 0. The
+    bristle state z is eliminated: when stuck it moves with x (folded into x), when sliding its
+    row vanishes (saturated bristles).
+    """
+    J = _numerical_jacobian(_rhs(params, gains, op.xd), op.y, state_scale(params), op.friction)
     keep = [i for i in range(NY)
             if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))]
     return J[np.ix_(keep, keep)]
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """The open-loop plant linearised at steady operation: dx/dt = A x + B u, y = C x + D u.
+
+    States (x, v, pL) are deviations from the operating point (m, m/s, Pa); the input is the
+    servo-amplifier command's deviation from the one that holds the operating point (V); the
+    outputs are the three measured states. `op` is the operating point (its uI is the command
+    that feeds the leak). `to_control()` gives a python-control `StateSpace` where that package
+    is installed.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    op: OperatingPoint
+    states: tuple[str, ...] = ("x", "v", "pL")
+    inputs: tuple[str, ...] = ("u",)
+    outputs: tuple[str, ...] = ("x", "v", "pL")
+
+    @property
+    def u0(self) -> float:
+        """The valve command (V) that holds the operating point."""
+        return float(self.op.y[IUI])
+
+    def poles(self) -> np.ndarray:
+        return np.linalg.eigvals(self.A)
+
+    def to_control(self):
+        try:
+            import control
+        except ImportError:
+            raise ValueError("python-control is not installed: `pip install control`, or use A, B, C, D") from None
+        return control.ss(self.A, self.B, self.C, self.D, states=list(self.states), inputs=list(self.inputs),
+                          outputs=list(self.outputs))
+
+
+def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stick") -> StateSpace:
+    """A, B, C, D of the open-loop plant (valve command -> position, velocity, pressure) at rest at `xd`.
+
+    The operating point is `plant.model.settled_state` (the load held by pL, the leak fed by the
+    command u0) with the mean supply pressure; the matrices are numerical derivatives of the one
+    `plant_rhs` with the PID switched off and the command given as an external input. The
+    friction linearisation is chosen as for `jacobian` (stick: the bristle spring folded into x;
+    sliding: saturated bristles).
+    """
+    if friction not in ("stick", "sliding"):
+        raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
+    mean = params.replace(pulse_amp=0.0)
+    y0 = settled_state(mean, xd=xd, z=params.fs / params.sigma0 if friction == "sliding" else 0.0)
+    u0 = float(y0[IUI])
+    p = pack(mean)
+
+    def f_of(u: float):
+        c = drive_vector(PIDGains(0.0), xd=xd, u_ext=u, pid_on=False)
+        return lambda y: rhs_vector(0.0, y, p, c)
+
+    scale = state_scale(params)
+    J = _numerical_jacobian(f_of(u0), y0, scale, friction)
+    du = 1e-3 * max(abs(u0), 1.0)
+    b = (f_of(u0 + du)(y0) - f_of(u0 - du)(y0)) / (2 * du)
+    keep = [IX, IV, IPL]
+    A = J[np.ix_(keep, keep)]
+    B = b[keep][:, None]
+    op = OperatingPoint(y=y0, xd=xd, friction=friction, integral="settled")
+    return StateSpace(A=A, B=B, C=np.eye(3), D=np.zeros((3, 1)), op=op)
 
 
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",

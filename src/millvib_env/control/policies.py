@@ -2,12 +2,16 @@
 
 * `FixedGainPolicy`: a PID with fixed gains, acting in the gain-schedule environment by holding the
   action that maps to its gains (pid-paper, pid-nominal, pid-robust).
-* `OraclePolicy`: knows each episode's true c1 and Ct (the evaluation loop hands it
-  ``info["params"]`` at every reset) and uses gains tuned offline for that plant, interpolated on
-  a (log c1, log Ct) grid: the bound a gain scheduler can approach, not a deployable controller.
+* `OraclePolicy`: knows the plant's true c1 and Ct (the evaluation loop hands it ``info["params"]``
+  at every reset and step) and uses gains tuned offline for that plant, interpolated on a
+  (log c1, log Ct) grid: the bound for a fixed-gain PID, not a deployable controller.
+* `LQRPolicy` (`lqr-oracle`): knows c1 and Ct and designs an LQR with integral action for the
+  PID + pressure-feedback structure on the linearised plant (`control.lqr`).
+* `AdaptivePolicy` (`pid-adaptive`, `control.adaptive`): estimates c1 and Ct online from what a
+  mill measures and takes the oracle's gains for the estimate: deployable.
 * `AgentPolicy`: a trained SB3 model with its VecNormalize statistics.
 
-The PID gains of the baselines and how they were found live in configs/control/.
+The gains of the baselines and how they were found live in configs/control/<task>.yaml.
 """
 
 from __future__ import annotations
@@ -20,19 +24,24 @@ import numpy as np
 
 from millvib_env._paths import agents_dir, config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig, load_env_config
-from millvib_env.envs.core import action_from_gains
-from millvib_env.params import PAPER_GAINS, PIDGains
+from millvib_env.params import PAPER_GAINS
+from millvib_env.tasks import get_task
 
-__all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "AgentPolicy", "gains_to_action", "load_controller",
-           "baseline_names", "list_agents", "load_pid_config"]
+__all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "LQRPolicy", "AgentPolicy", "GainTable",
+           "load_controller", "baseline_names", "list_agents", "load_control_config", "BASELINES"]
 
-PID_NAMES = ("pid-paper", "pid-nominal", "pid-robust", "pid-oracle")
-
-
-def gains_to_action(gains: Sequence[float], config: EnvConfig | None = None) -> np.ndarray:
-    """The gain-schedule action in [-1, 1]^3 that maps to (KP, KI, KD) (clipped to the bounds)."""
-    return action_from_gains(gains, config or load_env_config("default")).astype(np.float32)
+#: every baseline by name, with what it is
+BASELINES = {
+    "pid-paper": "the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)",
+    "pid-nominal": "tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is commissioned",
+    "pid-robust": "one set of gains minimising the mean cost over the task's tuning plants",
+    "pid-oracle": "knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not deployable",
+    "pid-adaptive": "estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the estimate",
+    "lqr-oracle": "knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
+                  "linearised plant; not deployable",
+}
 
 
 class Controller:
@@ -42,18 +51,29 @@ class Controller:
     env_id = "MillVib-GainSchedule-v0"
     env_kwargs: dict = {}
     recurrent = False
+    #: True: the evaluation loop asks the env for every step's measured signals (info["signals"])
+    needs_signals = False
+    task: str | None = None
 
     def on_reset(self, infos: Sequence[dict], indices: Sequence[int]) -> None:
         """Called with the reset infos of the environments that just started an episode."""
+
+    def on_step(self, infos: Sequence[dict]) -> None:
+        """Called after every step with the step's infos (one per environment)."""
+
+    def episode_extras(self, i: int) -> dict:
+        """Extra per-episode numbers of environment i (e.g. an estimator's error), at the episode's end."""
+        return {}
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         raise NotImplementedError
 
 
 class FixedGainPolicy(Controller):
-    def __init__(self, name: str, gains: PIDGains, config: EnvConfig | None = None, description: str = ""):
-        self.name, self.gains, self.description = name, gains, description
-        self._action = gains_to_action(gains.to_array(), config)
+    def __init__(self, name: str, gains, gain_map: GainMap, description: str = ""):
+        self.name, self.description = name, description
+        self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)
+        self._action = gain_map.action(self.gains).astype(np.float32)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(observation)
@@ -62,47 +82,106 @@ class FixedGainPolicy(Controller):
         return np.tile(self._action, (obs.shape[0], 1)), state
 
     def __repr__(self) -> str:
-        return f"FixedGainPolicy({self.name}, KP={self.gains.kp:.3g}, KI={self.gains.ki:.3g}, KD={self.gains.kd:.3g})"
+        return f"FixedGainPolicy({self.name}, gains={np.array2string(self.gains, precision=3)})"
 
 
-class OraclePolicy(Controller):
-    """Per-plant gains from an offline-tuned grid over (log c1, log Ct), interpolated bilinearly."""
+class PerEnvGains(Controller):
+    """A controller that holds one action per environment, set from each plant's (c1, Ct)."""
+
+    gain_map: GainMap
+
+    def _ensure(self, n: int) -> None:
+        have = 0 if getattr(self, "_actions", None) is None else self._actions.shape[0]
+        if have < n:
+            grown = np.zeros((n, self.gain_map.dim), dtype=np.float32)
+            if have:
+                grown[:have] = self._actions
+            self._actions = grown
+            self._plant = getattr(self, "_plant", []) + [None] * (n - have)
+
+    def gains_for(self, c1: float, ct: float) -> np.ndarray:
+        raise NotImplementedError
+
+    def _set(self, i: int, params: dict) -> None:
+        key = (params["c1"], params["Ct"])
+        if self._plant[i] != key:  # the plant changed (a new episode, or a change within one)
+            self._plant[i] = key
+            self._actions[i] = self.gain_map.action(self.gains_for(*key))
+
+    def on_reset(self, infos, indices) -> None:
+        self._ensure(max(indices) + 1)
+        for info, i in zip(infos, indices):
+            self._set(i, info["params"])
+
+    def on_step(self, infos) -> None:
+        self._ensure(len(infos))
+        for i, info in enumerate(infos):
+            self._set(i, info["params"])
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        if getattr(self, "_actions", None) is None:
+            raise ValueError(f"{self.name} needs the episode's true parameters: call on_reset(infos, indices) "
+                             "after every reset (the benchmark's evaluation loop does)")
+        obs = np.asarray(observation)
+        return (self._actions[0].copy() if obs.ndim == 1 else self._actions[: obs.shape[0]].copy()), state
+
+
+class GainTable:
+    """Gains tuned offline on a (log c1, log Ct) grid, interpolated bilinearly in log gains."""
+
+    def __init__(self, c1_grid: Sequence[float], ct_grid: Sequence[float], log_gains: np.ndarray):
+        from scipy.interpolate import RegularGridInterpolator
+
+        self.c1_grid, self.ct_grid = np.asarray(c1_grid, float), np.asarray(ct_grid, float)
+        self.log_gains = np.asarray(log_gains, float)  # (n_c1, n_ct, 3), log10 of KP, KI, KD
+        self._lo = np.log([self.c1_grid[0], self.ct_grid[0]])
+        self._hi = np.log([self.c1_grid[-1], self.ct_grid[-1]])
+        self._interp = RegularGridInterpolator((np.log(self.c1_grid), np.log(self.ct_grid)), self.log_gains)
+
+    def __call__(self, c1: float, ct: float) -> np.ndarray:
+        """(KP, KI, KD) for the plant (c1, Ct); plants outside the grid take its edge."""
+        point = np.clip(np.log([c1, ct]), self._lo, self._hi)
+        return 10.0 ** self._interp(point[None, :])[0]
+
+
+class OraclePolicy(PerEnvGains):
+    """Per-plant gains from the offline-tuned grid (`GainTable`) for the true (c1, Ct)."""
 
     name = "pid-oracle"
 
-    def __init__(self, c1_grid: Sequence[float], ct_grid: Sequence[float], log_gains: np.ndarray,
-                 config: EnvConfig | None = None):
-        from scipy.interpolate import RegularGridInterpolator
+    def __init__(self, table: GainTable, gain_map: GainMap):
+        self.table, self.gain_map = table, gain_map
+        self._actions = None
 
-        self.config = config or load_env_config("default")
-        self.c1_grid, self.ct_grid = np.asarray(c1_grid, float), np.asarray(ct_grid, float)
-        self.log_gains = np.asarray(log_gains, float)  # (n_c1, n_ct, 3), log10 of KP, KI, KD
-        self._interp = RegularGridInterpolator((np.log(self.c1_grid), np.log(self.ct_grid)), self.log_gains,
-                                               bounds_error=False, fill_value=None)
-        self._actions: np.ndarray | None = None
+    def gains_for(self, c1: float, ct: float) -> np.ndarray:
+        return self.table(c1, ct)
 
-    def gains_for(self, c1: float, ct: float) -> PIDGains:
-        point = np.clip([np.log(c1), np.log(ct)], [np.log(self.c1_grid[0]), np.log(self.ct_grid[0])],
-                        [np.log(self.c1_grid[-1]), np.log(self.ct_grid[-1])])
-        return PIDGains(*(10.0 ** self._interp(point[None, :])[0]))
 
-    def on_reset(self, infos, indices) -> None:
-        n = max(indices) + 1
-        if self._actions is None or self._actions.shape[0] < n:
-            grown = np.zeros((n, 3), dtype=np.float32)
-            if self._actions is not None:
-                grown[: self._actions.shape[0]] = self._actions
-            self._actions = grown
-        for info, i in zip(infos, indices):
-            g = self.gains_for(info["params"]["c1"], info["params"]["Ct"])
-            self._actions[i] = gains_to_action(g.to_array(), self.config)
+class LQRPolicy(PerEnvGains):
+    """`lqr-oracle`: LQR gains (PID + pressure feedback) designed for the true (c1, Ct)."""
 
-    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        if self._actions is None:
-            raise RuntimeError("pid-oracle needs the episode's true parameters: call on_reset(infos, indices) "
-                               "after every reset (the benchmark's evaluation loop does)")
-        obs = np.asarray(observation)
-        return (self._actions[0].copy() if obs.ndim == 1 else self._actions[: obs.shape[0]].copy()), state
+    name = "lqr-oracle"
+    #: the gain-schedule env with the pressure-feedback action, linearly scaled (the LQR's position
+    #: gain can be negative when its pressure feedback carries the position loop); KD keeps the
+    #: same 300 V s/m limit as every other controller
+    ENV_KWARGS = {"actions": {"pressure_feedback": True, "scale": "linear", "kp": [-2.0e7, 2.0e7],
+                              "ki": [0.0, 1.0e9], "kd": [0.0, 300.0], "kpl": [0.0, 1.0e-2]}}
+
+    def __init__(self, weights, base_params, task: str):
+        from millvib_env.control.lqr import lqr_gains
+
+        self.weights, self.base_params = weights, base_params
+        self.env_kwargs = dict(self.ENV_KWARGS)
+        self.gain_map = GainMap.from_config(load_env_config(get_task(task).config, **self.env_kwargs))
+        self._lqr = lqr_gains
+        self._actions = None
+        self.clipped = 0
+
+    def gains_for(self, c1: float, ct: float) -> np.ndarray:
+        g = self._lqr(self.base_params.replace(c1=c1, Ct=ct), self.weights)
+        if np.any(g < self.gain_map.lo) or np.any(g > self.gain_map.hi):
+            self.clipped += 1
+        return g
 
 
 class AgentPolicy(Controller):
@@ -116,6 +195,7 @@ class AgentPolicy(Controller):
         self.card = json.loads(card_path.read_text())
         self.name = self.card.get("name", folder.name)
         self.env_id = self.card["env_id"]
+        self.task = self.card.get("task", "startup")
         self.env_kwargs = dict(self.card.get("env_kwargs", {}))
         algo = self.card["algo"].lower()
         if algo == "ppo":
@@ -150,35 +230,84 @@ class AgentPolicy(Controller):
         return self.model.predict(obs, deterministic=deterministic)
 
 
-def load_pid_config() -> dict[str, Any]:
-    """configs/control/pid.yaml: the tuned fixed gains and the oracle's grid."""
-    return load_yaml(config_dir() / "control" / "pid.yaml")
+def load_control_config(task: str = "startup") -> dict[str, Any]:
+    """configs/control/<task>.yaml: the task's tuned baselines (an entry may say `from_task: NAME`)."""
+    name = get_task(task).name
+    path = config_dir() / "control" / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"no tuned baselines for task {name!r}: {path} is missing (run scripts/tune_pid.py "
+                         f"--task {name})")
+    return load_yaml(path)
+
+
+def _entry(task: str, name: str) -> dict:
+    data = load_control_config(task)
+    if name not in data:
+        raise ValueError(f"configs/control/{get_task(task).name}.yaml has no entry {name!r} (run "
+                         f"scripts/tune_pid.py --task {get_task(task).name})")
+    entry = data[name]
+    if "from_task" in entry:
+        return _entry(entry["from_task"], name)
+    return entry
 
 
 def baseline_names() -> list[str]:
-    return list(PID_NAMES)
+    return list(BASELINES)
 
 
-def list_agents() -> list[str]:
+def list_agents(task: str | None = None) -> list[str]:
+    """Shipped agents (folders under agents/ with a card), optionally only those trained on `task`."""
     root = agents_dir()
-    return sorted(p.name for p in root.iterdir() if (p / "card.json").exists()) if root.is_dir() else []
+    if not root.is_dir():
+        return []
+    names = []
+    for p in sorted(root.iterdir()):
+        card = p / "card.json"
+        if card.exists():
+            if task is not None and json.loads(card.read_text()).get("task", "startup") != get_task(task).name:
+                continue
+            names.append(p.name)
+    return names
 
 
-def load_controller(name: str, config: EnvConfig | None = None) -> Controller:
-    """A controller by name: a PID baseline, a shipped agent (agents/<name>) or an agent folder path."""
+def oracle_table(task: str) -> GainTable:
+    entry = _entry(task, "pid-oracle")
+    return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
+
+
+def load_controller(name: str, task: str = "startup", config: EnvConfig | None = None) -> Controller:
+    """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
+    an agent folder path."""
+    task = get_task(task).name
+    gain_map = GainMap.from_config(config or load_env_config(get_task(task).config))
+    ctrl: Controller
     if name == "pid-paper":
-        return FixedGainPolicy(name, PAPER_GAINS, config, "the paper's gains")
-    if name in PID_NAMES:
-        data = load_pid_config()
-        if name == "pid-oracle":
-            oracle = data["pid-oracle"]
-            return OraclePolicy(oracle["c1_grid"], oracle["ct_grid"], np.array(oracle["log10_gains"]), config)
-        entry = data[name]
-        return FixedGainPolicy(name, PIDGains(*entry["gains"]), config, entry.get("how", ""))
-    path = Path(name)
-    if not path.exists():
-        path = agents_dir() / name
-    if path.is_dir():
-        return AgentPolicy(path)
-    raise ValueError(f"controller {name!r} unknown: use one of {list(PID_NAMES)}, a shipped agent "
-                     f"{list_agents()} or an agent folder path")
+        ctrl = FixedGainPolicy(name, PAPER_GAINS, gain_map, BASELINES[name])
+    elif name in ("pid-nominal", "pid-robust"):
+        entry = _entry(task, name)
+        ctrl = FixedGainPolicy(name, entry["gains"], gain_map, entry.get("how", ""))
+    elif name == "pid-oracle":
+        ctrl = OraclePolicy(oracle_table(task), gain_map)
+    elif name == "lqr-oracle":
+        from millvib_env.control.lqr import LQRWeights
+
+        entry = _entry(task, name)
+        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), load_env_config(get_task(task).config).base_params, task)
+    elif name == "pid-adaptive":
+        from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
+
+        entry = _entry(task, name)
+        ctrl = AdaptivePolicy(oracle_table(task), gain_map, np.asarray(_entry(task, "pid-robust")["gains"]),
+                              EstimatorSettings(**entry["estimator"]),
+                              load_env_config(get_task(task).config).base_params)
+    else:
+        path = Path(name)
+        if not path.exists():
+            path = agents_dir() / name
+        if not path.is_dir():
+            raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
+                             f"{list_agents()} or an agent folder path")
+        ctrl = AgentPolicy(path)
+        return ctrl
+    ctrl.task = task
+    return ctrl

@@ -18,7 +18,7 @@ class MillVibEnv(gym.Env):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
     mode = "gain"
 
-    def __init__(self, config: str | dict | None = "default", *, residual: bool = False,
+    def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  render_mode: str | None = None, **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -31,6 +31,7 @@ class MillVibEnv(gym.Env):
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
         self._figure = None
+        self._episode_over = True  # until the first reset
 
     @property
     def params(self):
@@ -41,12 +42,16 @@ class MillVibEnv(gym.Env):
         super().reset(seed=seed)
         self.core.np_random[0] = self.np_random
         obs, info = self.core.reset_env(0, None, options)
+        self._episode_over = False
         if self.render_mode == "human":
             self.render()
         return obs, info
 
     def step(self, action):
+        if self._episode_over:
+            raise ValueError("step() called on an episode that has ended or never started: call reset() first")
         obs, reward, terminated, truncated, infos = self.core.step(action)
+        self._episode_over = bool(terminated[0] or truncated[0])
         if self.render_mode == "human":
             self.render()
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), infos[0]

@@ -1,4 +1,10 @@
-"""Environment configuration: YAML under configs/env/, merged with keyword overrides, validated."""
+"""Environment configuration: YAML under configs/env/, merged with keyword overrides, validated.
+
+Every key, nested ones included, is checked when the config loads: an unknown key (a typo), a
+wrong type or a value out of range raises ValueError naming the key path (``reward.w_effort``),
+the value and what is allowed. The schema below is the list of keys; configs/env/startup.yaml
+documents each of them.
+"""
 
 from __future__ import annotations
 
@@ -6,33 +12,49 @@ import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
-
-from millvib_env._yaml import load_yaml
+from typing import Any, Callable, Mapping
 
 from millvib_env._paths import config_dir
+from millvib_env._yaml import load_yaml
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
-__all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution"]
+__all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "CONFIG_ALIASES"]
 
-_TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize", "initial",
-             "disturbances", "reward", "actions", "envelope", "observation"}
+#: names kept for earlier releases: `default` is the `startup` task's episode
+CONFIG_ALIASES = {"default": "startup"}
+#: episodes longer than this are refused before anything is allocated (the severity record is kept whole)
+MAX_EPISODE_S = 60.0
 
 
 def list_env_configs() -> list[str]:
-    return sorted(p.stem for p in (config_dir() / "env").glob("*.yaml"))
+    names = {p.stem for p in (config_dir() / "env").glob("*.yaml")}
+    return sorted(names | set(CONFIG_ALIASES))
 
 
-def _read(name: str | Path) -> dict:
+def _read(name: str | Path, _seen: tuple = ()) -> dict:
+    if isinstance(name, str) and name in CONFIG_ALIASES:
+        name = CONFIG_ALIASES[name]
     path = Path(name)
     if not path.suffix:
         path = config_dir() / "env" / f"{name}.yaml"
-    if not path.exists():
-        raise ValueError(f"environment config {str(name)!r} not found; available: {list_env_configs()}")
-    data = load_yaml(path) or {}
+    if not path.is_file():
+        raise ValueError(f"environment config {str(name)!r} not found; available: {list_env_configs()} "
+                         "or a path to a .yaml file")
+    if path.resolve() in _seen:
+        raise ValueError(f"environment config {path}: 'inherit' forms a cycle")
+    try:
+        data = load_yaml(path)
+    except Exception as err:  # a YAML syntax error or an unreadable file
+        raise ValueError(f"environment config {path} cannot be read: {str(err).splitlines()[0]}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ValueError(f"environment config {path} must be a mapping of keys, not {type(data).__name__}")
     parent = data.pop("inherit", None)
-    if parent:
-        data = _merge(_read(parent), data)
+    if parent is not None:
+        if not isinstance(parent, str):
+            raise ValueError(f"environment config {path}: inherit = {parent!r} must be a config name")
+        data = _merge(_read(parent, _seen + (path.resolve(),)), data)
     return data
 
 
@@ -65,7 +87,7 @@ class Distribution:
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Validated environment configuration (see configs/env/default.yaml for every key)."""
+    """Validated environment configuration (see configs/env/startup.yaml for every key)."""
 
     raw: dict
     base_params: MillParams
@@ -90,29 +112,207 @@ class EnvConfig:
     def sample_rate_hz(self) -> float:
         return float(self.raw["sample_rate_hz"])
 
-
-def _positive(cfg: dict, key: str) -> float:
-    value = cfg[key]
-    if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"env config {key} = {value!r} is invalid: must be a finite number > 0")
-    return float(value)
+    @property
+    def pressure_feedback(self) -> bool:
+        return bool(self.raw["actions"].get("pressure_feedback", False))
 
 
-def load_env_config(config: str | Path | Mapping | None = "default", **overrides: Any) -> EnvConfig:
+# --- the schema --------------------------------------------------------------------------------
+def _fail(path: str, value: Any, allowed: str) -> None:
+    raise ValueError(f"env config {path} = {value!r} is invalid: {allowed}")
+
+
+def _number(path: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
+            integer: bool = False) -> float:
+    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok_type:
+        _fail(path, value, f"must be {'an integer' if integer else 'a number'}" + _bounds(lo, hi, lo_open))
+    if not math.isfinite(value) or value < lo or value > hi or (lo_open and value == lo):
+        _fail(path, value, "must be finite" + _bounds(lo, hi, lo_open))
+    return value
+
+
+def _bounds(lo: float, hi: float, lo_open: bool) -> str:
+    parts = []
+    if lo > -math.inf:
+        parts.append(f"{'>' if lo_open else '>='} {lo:g}")
+    if hi < math.inf:
+        parts.append(f"<= {hi:g}")
+    return (" " + " and ".join(parts)) if parts else ""
+
+
+def _bool(path: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        _fail(path, value, "must be true or false")
+    return value
+
+
+def _pair(path: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
+          integer: bool = False) -> tuple[float, float]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        _fail(path, value, "must be a [low, high] pair")
+    a = _number(f"{path}[0]", value[0], lo=lo, hi=hi, lo_open=lo_open, integer=integer)
+    b = _number(f"{path}[1]", value[1], lo=lo, hi=hi, lo_open=lo_open, integer=integer)
+    if a > b:
+        _fail(path, value, "need low <= high")
+    return a, b
+
+
+def _section(path: str, value: Any, fields: Mapping[str, Callable[[str, Any], Any]], *,
+             required: tuple[str, ...] = ()) -> dict:
+    if not isinstance(value, Mapping):
+        _fail(path, value, f"must be a mapping with keys {sorted(fields)}")
+    unknown = set(value) - set(fields)
+    if unknown:
+        raise ValueError(f"env config {path}: unknown key(s) {sorted(unknown)}; known: {sorted(fields)}")
+    missing = [k for k in required if k not in value]
+    if missing:
+        raise ValueError(f"env config {path}: missing key(s) {missing}")
+    for key, check in fields.items():
+        if key in value:
+            check(f"{path}.{key}", value[key])
+    return dict(value)
+
+
+def _optional(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
+    return lambda path, value: None if value is None else check(path, value)
+
+
+def _pos(path, v):
+    return _number(path, v, lo=0.0, lo_open=True)
+
+
+def _nonneg(path, v):
+    return _number(path, v, lo=0.0)
+
+
+def _nonneg_pair(path, v):
+    return _pair(path, v, lo=0.0)
+
+
+def _count_pair(path, v):
+    return _pair(path, v, lo=0, hi=1000, integer=True)
+
+
+_DISTURBANCES = {
+    "setpoint_steps": _optional(lambda p, v: _section(p, v, {
+        "count": _count_pair, "amplitude_m": lambda pp, vv: _pair(pp, vv, lo=0.0, hi=5e-3),
+        "window_s": _nonneg_pair}, required=("count", "amplitude_m", "window_s"))),
+    "force_steps": _optional(lambda p, v: _section(p, v, {
+        "count": _count_pair, "fraction": lambda pp, vv: _pair(pp, vv, lo=0.0, hi=1.0),
+        "window_s": _nonneg_pair}, required=("count", "fraction", "window_s"))),
+    "eccentricity": _optional(lambda p, v: _section(p, v, {
+        "amplitude_n": _nonneg_pair, "frequency_hz": lambda pp, vv: _pair(pp, vv, lo=0.0, hi=1000.0)},
+        required=("amplitude_n", "frequency_hz"))),
+    "sensor_noise": _optional(lambda p, v: _section(p, v, {"x_m": _nonneg, "v_m_s": _nonneg, "a_m_s2": _nonneg})),
+    "delay_steps": _optional(lambda p, v: _number(p, v, lo=0, hi=100, integer=True)),
+    "plant_change": _optional(lambda p, v: _section(p, v, {
+        "start_s": _nonneg_pair, "duration_s": lambda pp, vv: _pair(pp, vv, lo=0.0, lo_open=True),
+        "c1_factor": lambda pp, vv: _pair(pp, vv, lo=0.0, hi=1.0, lo_open=True),
+        "ct_factor": lambda pp, vv: _pair(pp, vv, lo=1.0, hi=1e6),
+        "kinds": lambda pp, vv: _kinds(pp, vv),
+        "c1_min": _pos, "ct_max": _pos},
+        required=("start_s", "duration_s", "c1_factor", "ct_factor"))),
+}
+
+_CHANGE_KINDS = ("damping", "leakage", "both")
+
+
+def _kinds(path: str, value: Any) -> None:
+    if not isinstance(value, list) or not value or any(k not in _CHANGE_KINDS for k in value):
+        _fail(path, value, f"must be a non-empty list drawn from {list(_CHANGE_KINDS)}")
+
+
+def _gain_bounds(path: str, value: Any) -> None:
+    lo, hi = _pair(path, value)
+    if not lo < hi:
+        _fail(path, value, "need low < high")
+
+
+def _residual_gains(path: str, value: Any) -> None:
+    if not isinstance(value, (list, tuple)) or len(value) not in (3, 4):
+        _fail(path, value, "must be [KP, KI, KD] or [KP, KI, KD, KPL], each >= 0")
+    for k, g in enumerate(value):
+        _number(f"{path}[{k}]", g, lo=0.0)
+
+
+_SECTIONS: dict[str, Callable[[str, Any], Any]] = {
+    "initial": lambda p, v: _section(p, v, {
+        "x0_m": lambda pp, vv: _number(pp, vv, lo=-0.05, hi=0.05), "x0_jitter_m": lambda pp, vv: _number(
+            pp, vv, lo=0.0, hi=0.01), "settled": _bool}),
+    "disturbances": lambda p, v: _section(p, v, _DISTURBANCES),
+    "reward": lambda p, v: _section(p, v, {
+        "vibration_scale_mm_s": _pos, "tracking_scale_um": _pos, "vib_time_constant_s": _pos,
+        "w_vibration": _nonneg, "w_tracking": _nonneg, "w_effort": _nonneg, "terminal_penalty": _nonneg},
+        required=("vibration_scale_mm_s", "tracking_scale_um", "vib_time_constant_s", "w_vibration",
+                  "w_tracking", "w_effort", "terminal_penalty")),
+    "actions": lambda p, v: _section(p, v, {
+        "kp": _gain_bounds, "ki": _gain_bounds, "kd": _gain_bounds, "kpl": _gain_bounds,
+        "pressure_feedback": _bool, "u_range_v": _pos, "residual_range_v": _pos,
+        "residual_gains": _residual_gains, "scale": lambda pp, vv: vv in ("log", "linear") or _fail(
+            pp, vv, "'log' or 'linear'")},
+        required=("kp", "ki", "kd", "kpl", "u_range_v", "residual_range_v", "residual_gains")),
+    "envelope": lambda p, v: _section(p, v, {
+        "x_max_m": lambda pp, vv: _number(pp, vv, lo=0.0, hi=0.1, lo_open=True),
+        "p_min_pa": lambda pp, vv: _number(pp, vv, hi=0.0), "p_max_factor": lambda pp, vv: _number(
+            pp, vv, lo=1.0, hi=9.0, lo_open=True)},
+        required=("x_max_m", "p_min_pa", "p_max_factor")),
+    "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool}),
+}
+
+_TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",
+             *_SECTIONS}
+
+
+def _randomize(data: dict, base: MillParams) -> tuple[Distribution, ...]:
+    spec = data.get("randomize") or {}
+    if not isinstance(spec, Mapping):
+        _fail("randomize", spec, "must be a mapping of parameter name -> {dist, low, high}")
+    dists = []
+    for name, entry in spec.items():
+        path = f"randomize.{name}"
+        if name not in PARAM_FIELDS:
+            raise ValueError(f"env config randomize: unknown plant parameter {name!r}; known: {list(PARAM_FIELDS)}")
+        _section(path, entry, {"dist": lambda p, v: v in ("loguniform", "uniform", "fixed") or _fail(
+            p, v, "one of 'loguniform', 'uniform', 'fixed'"), "low": _number, "high": _number}, required=("low",))
+        kind = entry.get("dist", "uniform")
+        lo, hi = float(entry["low"]), float(entry.get("high", entry["low"]))
+        if lo > hi or (kind == "loguniform" and lo <= 0):
+            _fail(path, [lo, hi], "need low <= high, and low > 0 for loguniform")
+        try:
+            base.replace(**{name: lo})  # both ends inside MillParams' ranges
+            base.replace(**{name: hi})
+        except ValueError as err:
+            raise ValueError(f"env config {path}: {err}") from None
+        dists.append(Distribution(name, kind, lo, hi))
+    return tuple(dists)
+
+
+def load_env_config(config: str | Path | Mapping | None = "startup", **overrides: Any) -> EnvConfig:
     """Read a config by name (configs/env/<name>.yaml), path or dict and apply keyword overrides.
 
     Nested sections merge: ``reward={"w_effort": 0.0}`` changes one weight; ``randomize`` replaces
-    the whole table.
+    the whole table. A dict config starts from `startup`.
     """
     if config is None:
-        config = "default"
-    data = _read(config) if isinstance(config, (str, Path)) else _merge(_read("default"), config)
+        config = "startup"
+    if isinstance(config, (str, Path)):
+        data = _read(config)
+    elif isinstance(config, Mapping):
+        data = _merge(_read("startup"), config)
+    else:
+        raise ValueError(f"config = {config!r} is invalid: a config name {list_env_configs()}, a path or a dict")
     data = _merge(data, overrides)
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown env config key(s) {sorted(unknown)}; known: {sorted(_TOP_KEYS)}")
-    for key in ("episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz"):
-        _positive(data, key)
+    missing = sorted(_TOP_KEYS - set(data))
+    if missing:
+        raise ValueError(f"env config is missing key(s) {missing}")
+    _number("episode_s", data["episode_s"], lo=0.0, hi=MAX_EPISODE_S, lo_open=True)
+    for key in ("control_dt_s", "decision_dt_s"):
+        _number(key, data[key], lo=0.0, hi=1.0, lo_open=True)
+    _number("sample_rate_hz", data["sample_rate_hz"], lo=2500.0, hi=1e6)
     for key in ("control_dt_s", "decision_dt_s"):
         ratio = data[key] * data["sample_rate_hz"]
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
@@ -120,38 +320,26 @@ def load_env_config(config: str | Path | Mapping | None = "default", **overrides
                              f"(1/sample_rate_hz = {1 / data['sample_rate_hz']} s)")
     ratio = data["decision_dt_s"] / data["control_dt_s"]
     if abs(ratio - round(ratio)) > 1e-6:
-        raise ValueError(f"decision_dt_s = {data['decision_dt_s']} must be a whole number of control_dt_s "
-                         f"= {data['control_dt_s']}")
-    if data["sample_rate_hz"] < 2500:
-        raise ValueError(f"sample_rate_hz = {data['sample_rate_hz']} is invalid: >= 2500 Hz is needed for the "
-                         "1 kHz severity band")
-    base = load_preset(data["plant"]) if isinstance(data["plant"], str) else MillParams.from_dict(data["plant"])
-    dists = []
-    for name, spec in (data.get("randomize") or {}).items():
-        if name not in PARAM_FIELDS:
-            raise ValueError(f"randomize: unknown plant parameter {name!r}; known: {list(PARAM_FIELDS)}")
-        kind = spec.get("dist", "uniform")
-        lo, hi = float(spec["low"]), float(spec.get("high", spec["low"]))
-        if kind not in ("loguniform", "uniform", "fixed"):
-            raise ValueError(f"randomize.{name}.dist = {kind!r} is invalid: loguniform, uniform or fixed")
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi) or (kind == "loguniform" and lo <= 0):
-            raise ValueError(f"randomize.{name}: [{lo}, {hi}] is invalid (need low <= high, > 0 for loguniform)")
-        base.replace(**{name: lo})  # validates both ends against MillParams' ranges
-        base.replace(**{name: hi})
-        dists.append(Distribution(name, kind, lo, hi))
-    for key in ("kp", "ki", "kd"):
-        lo, hi = data["actions"][key]
-        if not (0 < lo < hi and math.isfinite(hi)):
-            raise ValueError(f"actions.{key} = {[lo, hi]} is invalid: need 0 < low < high (log-scaled)")
-    for key in ("u_range_v", "residual_range_v"):
-        _positive(data["actions"], key)
-    for key in ("vibration_scale_mm_s", "tracking_scale_um", "vib_time_constant_s"):
-        _positive(data["reward"], key)
-    for key in ("w_vibration", "w_tracking", "w_effort", "terminal_penalty"):
-        value = data["reward"][key]
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-            raise ValueError(f"reward.{key} = {value!r} is invalid: must be finite and >= 0")
-    delay = data["disturbances"].get("delay_steps") or 0
-    if not (isinstance(delay, int) and 0 <= delay <= 100):
-        raise ValueError(f"disturbances.delay_steps = {delay!r} is invalid: an integer in [0, 100]")
-    return EnvConfig(raw=data, base_params=base, randomize=tuple(dists))
+        raise ValueError(f"env config decision_dt_s = {data['decision_dt_s']} must be a whole number of "
+                         f"control_dt_s = {data['control_dt_s']}")
+    if data["episode_s"] < data["decision_dt_s"]:
+        raise ValueError(f"env config episode_s = {data['episode_s']} is shorter than one decision period "
+                         f"({data['decision_dt_s']} s)")
+    for key, check in _SECTIONS.items():
+        check(key, data[key])
+    if data["actions"].get("scale", "log") == "log":
+        for key in ("kp", "ki", "kd", "kpl"):
+            if data["actions"][key][0] <= 0:
+                _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
+                      "(or actions.scale: linear)")
+    plant = data["plant"]
+    try:
+        if isinstance(plant, str):
+            base = load_preset(plant)
+        elif isinstance(plant, Mapping):
+            base = MillParams.from_dict(plant)
+        else:
+            raise ValueError(f"must be a preset name or a mapping of MillParams fields, not {plant!r}")
+    except ValueError as err:
+        raise ValueError(f"env config plant: {err}") from None
+    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base))

@@ -3,17 +3,23 @@
 Each disturbance draws its episode realisation from its own generator (a child of the episode's
 SeedSequence) and writes into the episode's profile arrays on the control grid (one value per
 control period): set-point xd (m) and rolling-force offset dFL (N). Roll eccentricity is a
-sinusoidal force whose amplitude, frequency and phase are drawn per episode; sensor noise and
-delay act on the observation.
+sinusoidal force whose amplitude, frequency and phase are drawn per episode; a plant change moves
+c1 and Ct during the episode (`PlantChange`, integrated by the plant's own equations); sensor noise
+and delay act on the observation. The config's keys are checked in `envs.config`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import math
+
 import numpy as np
 
-__all__ = ["EpisodeProfile", "SetpointSteps", "ForceSteps", "Eccentricity", "SensorNoise", "build_disturbances"]
+from millvib_env.plant.model import PlantChange
+
+__all__ = ["EpisodeProfile", "SetpointSteps", "ForceSteps", "Eccentricity", "ParameterChange", "SensorNoise",
+           "build_disturbances"]
 
 
 @dataclass
@@ -27,6 +33,7 @@ class EpisodeProfile:
     ecc_amp_n: float = 0.0
     ecc_omega: float = 0.0
     ecc_phase: float = 0.0
+    change: PlantChange | None = None
     events: list = field(default_factory=list)
 
     def __post_init__(self):
@@ -88,6 +95,36 @@ class Eccentricity:
         profile.ecc_amp_n = float(rng.uniform(a_lo, a_hi))
         profile.ecc_omega = float(2 * np.pi * rng.uniform(f_lo, f_hi))
         profile.ecc_phase = float(rng.uniform(0, 2 * np.pi))
+        profile.events.append(("eccentricity", 0.0, {"amplitude_n": profile.ecc_amp_n,
+                                                     "frequency_hz": profile.ecc_omega / (2 * np.pi)}))
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """The damping falls and/or the leakage rises during the episode (a `PlantChange`).
+
+    Start time and duration uniform, factors log-uniform; the final values are kept within the
+    paper's ranges (c1 >= c1_min, Ct <= ct_max); which of damping, leakage or both changes is
+    drawn from `kinds` with equal odds.
+    """
+
+    spec: dict
+
+    def apply(self, rng, profile: EpisodeProfile, params) -> None:
+        kinds = list(self.spec.get("kinds") or ["both"])
+        kind = kinds[int(rng.integers(len(kinds)))]
+        t0 = float(rng.uniform(*_range(self.spec, "start_s")))
+        duration = float(rng.uniform(*_range(self.spec, "duration_s")))
+        lo, hi = _range(self.spec, "c1_factor")
+        f_c1 = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+        lo, hi = _range(self.spec, "ct_factor")
+        f_ct = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+        f_c1 = max(f_c1, float(self.spec.get("c1_min", 0.0)) / params.c1) if kind != "leakage" else 1.0
+        f_ct = min(f_ct, float(self.spec.get("ct_max", math.inf)) / params.Ct) if kind != "damping" else 1.0
+        profile.change = PlantChange(t0, duration, min(f_c1, 1.0), max(f_ct, 1.0))
+        profile.events.append(("plant_change", t0, {"kind": kind, "duration_s": duration,
+                                                    "c1_factor": profile.change.c1_factor,
+                                                    "ct_factor": profile.change.ct_factor}))
 
 
 @dataclass(frozen=True)
@@ -102,7 +139,8 @@ class SensorNoise:
         return rng.normal(0.0, 1.0, (n, 3)) * np.array([self.x_m, self.v_m_s, self.a_m_s2])
 
 
-_PROFILE_KINDS = {"setpoint_steps": SetpointSteps, "force_steps": ForceSteps, "eccentricity": Eccentricity}
+_PROFILE_KINDS = {"setpoint_steps": SetpointSteps, "force_steps": ForceSteps, "eccentricity": Eccentricity,
+                  "plant_change": ParameterChange}
 
 
 def build_disturbances(spec: dict) -> tuple[list, SensorNoise | None, int]:

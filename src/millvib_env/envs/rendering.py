@@ -43,7 +43,10 @@ def render_frame(core, figure=None, *, human: bool = False):
         ax_c.set_ylabel("u (V)")
     ax_c.set_xlabel("t (ms)")
     n_tr = int(core.n_trace[0])
-    sev = vibration_severity(core.acc_trace[0, :n_tr], core.cfg.sample_rate_hz) if n_tr >= 64 else math.nan
+    try:  # the band's 10 Hz edge needs 0.1 s of record
+        sev = vibration_severity(core.acc_trace[0, :n_tr], core.cfg.sample_rate_hz)
+    except ValueError:
+        sev = math.nan
     p = core.params[0]
     figure.suptitle(f"t = {t_end * 1e3:.0f} ms   severity so far {sev:.3g} mm/s   "
                     f"c1 = {p.c1:.3g}, Ct = {p.Ct:.2g}", fontsize=9)

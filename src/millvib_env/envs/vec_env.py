@@ -28,7 +28,7 @@ class MillVibVecEnv(VecEnv):
     """
 
     def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
-                 config: str | dict | None = "default", residual: bool = False,
+                 config: str | dict | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
         if env_id not in ENV_IDS:
             raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")

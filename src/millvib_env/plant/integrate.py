@@ -24,8 +24,8 @@ from scipy.integrate import solve_ivp
 
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.model import (AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, drive_vector,
-                                     initial_state, pack)
+from millvib_env.plant.model import (AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, PlantChange,
+                                     drive_vector, initial_state, pack)
 from millvib_env.severity import iso_zone, vibration_severity
 
 __all__ = ["SimResult", "BatchResult", "simulate", "simulate_batch", "DEFAULT_RTOL_FAST",
@@ -125,15 +125,14 @@ class BatchResult:
     status: list[str]
     n_steps: np.ndarray
     wall_s: float
-    drive: dict = field(default_factory=dict)
+    drive: np.ndarray  # (N, NC): the drive vector of every run (gains, pL_ref, plant change, ...)
     _aux: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def aux(self) -> np.ndarray:
         if self._aux is None:
-            C = np.stack([drive_vector(g, **self.drive) for g in self.gains])
-            self._aux = np.stack([kernel.aux_at(self.t, self.states[b], pack(self.params[b]), C[b], self.xd[b])
-                                  for b in range(len(self))])
+            self._aux = np.stack([kernel.aux_at(self.t, self.states[b], pack(self.params[b]), self.drive[b],
+                                                self.xd[b]) for b in range(len(self))])
         return self._aux
 
     def __len__(self) -> int:
@@ -206,7 +205,7 @@ def _check_rtol(rtol: float) -> float:
 def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_end: float = 0.5, *,
              x0: float = 1.0e-3, xd: XdSpec = 0.0, method: str = "fast", dt_out: float = DEFAULT_DT_OUT,
              rtol: float | None = None, ivp_method: str = "LSODA", u_ext: float = 0.0,
-             pid_on: bool = True, y0: np.ndarray | None = None) -> SimResult:
+             pid_on: bool = True, y0: np.ndarray | None = None, change: PlantChange | None = None) -> SimResult:
     """Simulate one closed-loop plant from the paper's initial state.
 
     Parameters
@@ -220,12 +219,16 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     rtol : relative tolerance (default 1e-6 fast, 1e-9 reference); atol = rtol * state_scale.
     u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
     y0 : full initial state (x, v, pL, z, uI), overriding x0.
+    change : a change of c1 and Ct during the run (`PlantChange`), integrated by the same equations.
+
+    With ``gains.kpl > 0`` the pressure feedback acts on pL - pL(0): the reference is the initial
+    chamber pressure.
     """
     params = params or MillParams()
     gains = gains or PAPER_GAINS
     res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
                          ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
-                         y0=None if y0 is None else np.asarray(y0)[None, :])
+                         y0=None if y0 is None else np.asarray(y0)[None, :], change=change)
     out = res[0]
     out.info["wall_s"] = res.wall_s
     return out
@@ -235,7 +238,8 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
                    t_end: float = 0.5, *, x0: float | np.ndarray = 1.0e-3, xd: XdSpec = 0.0,
                    method: str = "fast", dt_out: float = DEFAULT_DT_OUT, rtol: float | None = None,
                    ivp_method: str = "LSODA", u_ext: float = 0.0, pid_on: bool = True,
-                   y0: np.ndarray | None = None, progress: bool = False) -> BatchResult:
+                   y0: np.ndarray | None = None, progress: bool = False,
+                   change: PlantChange | Sequence[PlantChange | None] | None = None) -> BatchResult:
     """Simulate N independent plants, each with its own parameters and gains.
 
     `params` and `gains` are single objects (shared) or sequences of equal length N. The fast
@@ -257,11 +261,15 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     if not np.all(np.isfinite(x0s)):
         raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
     P = np.stack([pack(p) for p in p_list])
-    C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on) for g in g_list])
     if y0 is None:
         Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
     else:
         Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))
+    changes = list(change) if isinstance(change, (list, tuple)) else [change] * N
+    if len(changes) != N:
+        raise ValueError(f"change has {len(changes)} entries for {N} plants")
+    C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on, pl_ref=float(y[IPL]), change=ch)
+                  for g, y, ch in zip(g_list, Y0, changes)])
     for p, y in zip(p_list, Y0):
         if not (-p.L1 < y[IX] < p.L - p.L1):
             raise ValueError(f"x0 = {y[IX]!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
@@ -288,7 +296,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     return BatchResult(t=t, states=YS, xd=XD, params=p_list, gains=g_list, method=method,
                        diverged=status != kernel.OK, t_diverged=t_fail,
                        status=[kernel.STATUS_TEXT[int(s)] for s in status], n_steps=n_steps, wall_s=wall,
-                       drive={"u_ext": u_ext, "pid_on": pid_on})
+                       drive=C)
 
 
 def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress):

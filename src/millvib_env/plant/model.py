@@ -15,11 +15,22 @@ index  name    meaning
 Drive vector ``c`` (``NC``), held constant over an integration segment:
 KP, KI, KD (PID gains), xd (set-point, m), u_ext (external valve command, V, added to the PID
 output), pid_on (1.0 or 0.0), dFL (rolling-force offset, N), eccentricity force amplitude (N),
-angular frequency (rad/s) and phase (rad).
+angular frequency (rad/s) and phase (rad), KPL (pressure-feedback gain, V/Pa) and its reference
+pressure pL_ref (Pa), and a within-run change of the plant: start time t0 (s), duration (s) and
+the natural logs of the final factors on c1 and Ct.
+
+A plant change is part of the drive, not a second copy of the equations: c1(t) = c1 F_c1^s(t) and
+Ct(t) = Ct F_Ct^s(t), with s(t) the smoothstep 3 tau^2 - 2 tau^3 of tau = (t - t0) / duration
+clipped to [0, 1] (`change_fraction`). The change is continuous with a continuous rate, so the
+adaptive integrators follow it without a restart, and the geometric interpolation spreads a
+1000-fold leakage rise evenly over its duration on a log scale.
 
 Equations (paper numbering):
 
-* (11) PID:  u = pid_on * (KP e + uI - KD v) + u_ext,  e = xd - x, saturated at +-u_max.
+* (11) PID:  u = pid_on * (KP e + uI - KD v - KPL (pL - pL_ref)) + u_ext,  e = xd - x, saturated
+  at +-u_max. The pressure-feedback term (not in the paper; KPL = 0 by default, and then the
+  term is skipped, so trajectories are bit for bit those without it) is the textbook active
+  damping of a hydraulic servo: a load-pressure rise closes the valve, as leakage would.
   The derivative acts on the measurement (-KD v), so a set-point step gives no derivative kick.
   Storing the integral *term* uI (not int e) makes gain changes bumpless in the integral term.
   Integration stops while the output saturates in the direction of e (anti-windup).
@@ -38,6 +49,7 @@ Equations (paper numbering):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -58,8 +70,9 @@ P_S0, P_S1, P_S2, P_FC, P_FS, P_VS = (_P[k] for k in ("sigma0", "sigma1", "sigma
 P_PA, P_PF, P_PH2, P_PH3, P_DPR, P_UMAX = (
     _P[k] for k in ("pulse_amp", "pulse_freq", "pulse_h2", "pulse_h3", "dp_reg", "u_max"))
 
-NC = 10
-C_KP, C_KI, C_KD, C_XD, C_UEXT, C_PID, C_DFL, C_EA, C_EW, C_EP = range(NC)
+NC = 16
+(C_KP, C_KI, C_KD, C_XD, C_UEXT, C_PID, C_DFL, C_EA, C_EW, C_EP, C_KPL, C_PLREF,
+ C_CHG_T0, C_CHG_DT, C_CHG_LC1, C_CHG_LCT) = range(NC)
 
 NAUX = 6
 A_ACC, A_U, A_XV, A_QL, A_FF, A_PS = range(NAUX)
@@ -101,6 +114,29 @@ def supply_pressure(t, p):
 
 
 @njit(cache=True)
+def change_fraction(t, t0, duration):
+    """Progress s in [0, 1] of a within-run plant change at time t: smoothstep of (t - t0)/duration."""
+    if t <= t0:
+        return 0.0
+    if t >= t0 + duration:
+        return 1.0
+    tau = (t - t0) / duration
+    return tau * tau * (3.0 - 2.0 * tau)
+
+
+@njit(cache=True, inline="always")
+def damping_and_leakage(t, p, c):
+    """c1(t) and Ct(t): the plant's values, moved by a within-run change when the drive has one."""
+    c1 = p[P_C1]
+    ct = p[P_CT]
+    if c[C_CHG_LC1] != 0.0 or c[C_CHG_LCT] != 0.0:
+        s = change_fraction(t, c[C_CHG_T0], c[C_CHG_DT])
+        c1 *= math.exp(s * c[C_CHG_LC1])
+        ct *= math.exp(s * c[C_CHG_LCT])
+    return c1, ct
+
+
+@njit(cache=True)
 def plant_rhs(t, y, p, c, dy, aux):
     """Closed-loop derivatives dy = f(t, y) and the auxiliary outputs (a, u, xv, QL, Ff, ps).
 
@@ -113,7 +149,10 @@ def plant_rhs(t, y, p, c, dy, aux):
 
     # PID (11), derivative on measurement, integral term as state, saturation + anti-windup
     e = c[C_XD] - x
-    u = c[C_PID] * (c[C_KP] * e + y[IUI] - c[C_KD] * v) + c[C_UEXT]
+    u_pid = c[C_KP] * e + y[IUI] - c[C_KD] * v
+    if c[C_KPL] != 0.0:
+        u_pid -= c[C_KPL] * (pL - c[C_PLREF])
+    u = c[C_PID] * u_pid + c[C_UEXT]
     umax = p[P_UMAX]
     dui = c[C_PID] * c[C_KI] * e
     if u > umax:
@@ -135,7 +174,8 @@ def plant_rhs(t, y, p, c, dy, aux):
     ql = p[D_KQ] * u * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
 
     # continuity (4): V = Ap (L1 + x)
-    dpl = p[D_BA] / (p[P_L1] + x) * (ql - p[P_AP] * v - p[P_CT] * (pL - p[P_PB]))
+    c1, ct = damping_and_leakage(t, p, c)
+    dpl = p[D_BA] / (p[P_L1] + x) * (ql - p[P_AP] * v - ct * (pL - p[P_PB]))
 
     # LuGre friction (5)-(7)
     r = v * p[D_INVVS]
@@ -147,7 +187,7 @@ def plant_rhs(t, y, p, c, dy, aux):
     fl = p[P_FL] + c[C_DFL]
     if c[C_EA] != 0.0:
         fl += c[C_EA] * math.sin(c[C_EW] * t + c[C_EP])
-    acc = (p[P_AP] * pL - p[D_ABPB] - p[P_C1] * v - p[P_K1] * x - ff - fl) * p[D_INVM]
+    acc = (p[P_AP] * pL - p[D_ABPB] - c1 * v - p[P_K1] * x - ff - fl) * p[D_INVM]
 
     dy[IX] = v
     dy[IV] = acc
@@ -176,13 +216,51 @@ def state_ok(y, p, p_max):
 
 def drive_vector(gains: PIDGains, xd: float = 0.0, u_ext: float = 0.0, pid_on: bool = True,
                  dFL: float = 0.0, ecc_amp: float = 0.0, ecc_omega: float = 0.0,
-                 ecc_phase: float = 0.0) -> np.ndarray:
-    """Pack a drive vector (see module docstring)."""
+                 ecc_phase: float = 0.0, pl_ref: float = 0.0,
+                 change: "PlantChange | None" = None) -> np.ndarray:
+    """Pack a drive vector (see module docstring); `gains.kpl` is the pressure-feedback gain."""
     c = np.zeros(NC)
-    c[C_KP], c[C_KI], c[C_KD] = gains.kp, gains.ki, gains.kd
+    c[C_KP], c[C_KI], c[C_KD], c[C_KPL] = gains.kp, gains.ki, gains.kd, gains.kpl
     c[C_XD], c[C_UEXT], c[C_PID] = xd, u_ext, 1.0 if pid_on else 0.0
     c[C_DFL], c[C_EA], c[C_EW], c[C_EP] = dFL, ecc_amp, ecc_omega, ecc_phase
+    c[C_PLREF] = pl_ref
+    if change is not None:
+        change.write(c)
     return c
+
+
+@dataclass(frozen=True)
+class PlantChange:
+    """A change of damping and leakage during a run: c1 -> c1 * c1_factor, Ct -> Ct * ct_factor,
+    starting at t0_s and completed duration_s later (smoothstep, geometric in the values)."""
+
+    t0_s: float
+    duration_s: float
+    c1_factor: float = 1.0
+    ct_factor: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("t0_s", "duration_s", "c1_factor", "ct_factor"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                    or not math.isfinite(value):
+                raise ValueError(f"PlantChange.{name} = {value!r} is invalid: must be a finite number")
+        if self.t0_s < 0 or self.duration_s <= 0:
+            raise ValueError(f"PlantChange: t0_s = {self.t0_s!r} must be >= 0 and duration_s = "
+                             f"{self.duration_s!r} > 0 (s)")
+        if self.c1_factor <= 0 or self.ct_factor <= 0:
+            raise ValueError(f"PlantChange: c1_factor = {self.c1_factor!r} and ct_factor = {self.ct_factor!r} "
+                             "must be > 0")
+
+    def write(self, c: np.ndarray) -> None:
+        c[C_CHG_T0], c[C_CHG_DT] = self.t0_s, self.duration_s
+        c[C_CHG_LC1], c[C_CHG_LCT] = math.log(self.c1_factor), math.log(self.ct_factor)
+
+    def values_at(self, t: float, params: MillParams) -> tuple[float, float]:
+        """(c1, Ct) at time t, from the same ramp the plant integrates."""
+        s = change_fraction(float(t), self.t0_s, self.duration_s)
+        return (params.c1 * math.exp(s * math.log(self.c1_factor)),
+                params.Ct * math.exp(s * math.log(self.ct_factor)))
 
 
 def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.0) -> float:
@@ -211,3 +289,29 @@ def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> n
     y0[IUI] = uI0
     y0[IPL] = balanced_pressure(y0, pack(params), np.zeros(NC))
     return y0
+
+
+def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: float = 0.0) -> np.ndarray:
+    """Steady operation at the set-point: x = xd, at rest, bristles at z (default relaxed, 0), pL
+    holding the load (force balance 8) and the integral term uI feeding the leak (continuity 4:
+    QL = Ct (pL - pb)).
+
+    Both unknowns come from `plant_rhs` itself: pL through `balanced_pressure`, uI because the
+    pressure rate is linear in the valve command on either side of u = 0. The supply pressure is
+    its mean (the pulsation's phase is zero at t = 0).
+    """
+    p = pack(params)
+    c = np.zeros(NC)
+    c[C_KP], c[C_PID], c[C_XD], c[C_DFL] = 1.0, 1.0, xd, dFL  # e = 0: the gain plays no part
+    y = np.zeros(NY)
+    y[IX] = xd
+    y[IZ] = z
+    y[IPL] = balanced_pressure(y, p, c)
+    dy, aux = np.empty(NY), np.empty(NAUX)
+    plant_rhs(0.0, y, p, c, dy, aux)
+    leak_rate = dy[IPL]  # uI = 0: only the leak acts
+    side = 1.0 if leak_rate <= 0.0 else -1.0  # the valve must open towards the supply (or the tank)
+    y[IUI] = side
+    plant_rhs(0.0, y, p, c, dy, aux)
+    y[IUI] = -leak_rate * side / (dy[IPL] - leak_rate) if dy[IPL] != leak_rate else 0.0
+    return y

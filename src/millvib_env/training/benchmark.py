@@ -1,10 +1,13 @@
-"""`millvib benchmark`: every controller on the same held-out plants and on every named scenario.
+"""`millvib benchmark`: every controller of a task on the same held-out plants (and, for `startup`,
+on every named scenario).
 
-Held-out plants: episode seeds ``seed, seed+1, ...`` (default 20000 and up, disjoint from training
-and tuning seeds); each seed fixes the plant (c1, Ct), the disturbances and the start, identically
-in both environment modes, so gain schedulers, valve policies and fixed PIDs meet the same plants.
-Per controller: mean, median and 95th-percentile severity (mm/s), ISO zone counts, mean tracking
-RMS (um), diverged rate and mean episode cost (severity / 4.5 mm/s + tracking RMS / 10 um).
+Held-out plants: episode seeds ``seed, seed+1, ...`` inside the task's held-out range
+(configs/tasks.yaml; a seed outside it is refused); each seed fixes the plant (c1, Ct), the
+disturbances and the start, identically in both environment modes, so gain schedulers, valve
+policies and fixed PIDs meet the same plants. Per controller: mean, median and 95th-percentile
+severity (mm/s), its start (first 0.1 s) and the rest, the pump line's and the 10-100 Hz band's
+levels, ISO zone counts, mean tracking RMS (um), diverged rate, mean episode cost
+(severity / 4.5 mm/s + tracking RMS / 10 um) and its CVaR-20 (mean of the worst 20 % of episodes).
 """
 
 from __future__ import annotations
@@ -22,12 +25,19 @@ import numpy as np
 from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
+from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
 
-__all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_SEED", "DEFAULT_EPISODES"]
+__all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES", "cvar"]
 
-DEFAULT_SEED = 20_000
 DEFAULT_EPISODES = 40
+
+
+def cvar(values: Sequence[float], worst_fraction: float = 0.2) -> float:
+    """Mean of the worst (largest) `worst_fraction` of the values (at least one)."""
+    v = np.sort(np.asarray(values, float))[::-1]
+    k = max(1, int(math.ceil(worst_fraction * v.size)))
+    return float(np.mean(v[:k]))
 
 
 def summarize(records: Sequence[dict]) -> dict:
@@ -35,10 +45,17 @@ def summarize(records: Sequence[dict]) -> dict:
     trk = np.array([r["tracking_rms_um"] for r in records], float)
     cost = np.array([r["cost"] for r in records], float)
     zones = {z: int(sum(r["iso_zone"] == z for r in records)) for z in "ABCD"}
-    return {"severity_mean": float(np.mean(sev)), "severity_median": float(np.median(sev)),
-            "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
-            "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
-            "cost_median": float(np.median(cost)), "iso_zones": zones, "episodes": len(records)}
+    out = {"severity_mean": float(np.mean(sev)), "severity_median": float(np.median(sev)),
+           "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
+           "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
+           "cost_median": float(np.median(cost)), "cost_cvar20": cvar(cost), "cost_worst": float(np.max(cost)),
+           "iso_zones": zones, "episodes": len(records)}
+    for key in ("severity_start_mm_s", "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s",
+                "c1_log_error", "ct_log_error"):
+        vals = [r[key] for r in records if key in r]
+        if vals:
+            out[key.replace("_mm_s", "") + "_mean"] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+    return out
 
 
 def distinct_plant_scenarios() -> list[str]:
@@ -53,23 +70,35 @@ def distinct_plant_scenarios() -> list[str]:
     return names
 
 
-def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = DEFAULT_EPISODES,
-                  seed: int = DEFAULT_SEED, env_id: str = "MillVib-GainSchedule-v0", scenarios: bool = True,
-                  progress: bool = True) -> dict:
-    names = list(controllers) if controllers else baseline_names() + list_agents()
-    loaded: dict[str, Controller] = {n: load_controller(n) for n in names}
+def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
+                  episodes: int = DEFAULT_EPISODES, seed: int | None = None, env_id: str = "MillVib-GainSchedule-v0",
+                  scenarios: bool | None = None, progress: bool = True) -> dict:
+    """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
+    `episodes` held-out plants of `task` from episode seed `seed` (default: the first held-out seed)."""
+    t = get_task(task)
+    if seed is None:
+        seed = t.seeds["heldout"].start
     seeds = list(range(seed, seed + episodes))
-    result: dict = {"controllers": {}, "seed": seed, "episodes": episodes, "env_id": env_id,
+    t.check_heldout(seeds)
+    names = list(controllers) if controllers else baseline_names() + list_agents(t.name)
+    loaded: dict[str, Controller] = {n: load_controller(n, t.name) for n in names}
+    for name, ctrl in loaded.items():
+        if getattr(ctrl, "card", None) is not None and ctrl.task != t.name:
+            raise ValueError(f"agent {name!r} was trained on task {ctrl.task!r}, not {t.name!r}: benchmark it with "
+                             f"--task {ctrl.task}")
+    if scenarios is None:
+        scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
+    result: dict = {"controllers": {}, "task": t.name, "seed": seed, "episodes": episodes, "env_id": env_id,
                     "cost_scales": dict(COST_SCALES), "scenarios": {}, "records": {}}
     start = time.time()
     iterator = names
     if progress:
         from tqdm.auto import tqdm
-        iterator = tqdm(names, desc="benchmark", unit="controller")
+        iterator = tqdm(names, desc=f"benchmark {t.name}", unit="controller")
     for name in iterator:
         ctrl = loaded[name]
         ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
-        recs = run_episodes(ctrl, seeds, env_id=ctrl_env)
+        recs = run_episodes(ctrl, seeds, env_id=ctrl_env, task=t.name)
         summary = summarize(recs)
         summary["env_id"] = ctrl_env
         result["controllers"][name] = summary
@@ -77,7 +106,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = D
         if scenarios:
             sc_recs = {}
             for sc in distinct_plant_scenarios():
-                rec = run_episodes(ctrl, [seed], scenario=sc, env_id=ctrl_env)[0]
+                rec = run_episodes(ctrl, [seed], scenario=sc, env_id=ctrl_env, task=t.name)[0]
                 sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
                                                    "cost")}
             result["scenarios"][name] = sc_recs
@@ -92,18 +121,25 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, episodes: int = D
 
 
 def format_table(result: dict) -> str:
-    lines = [f"Held-out plants: {result['episodes']} episodes, seeds {result['seed']}-"
-             f"{result['seed'] + result['episodes'] - 1}; cost = severity / {result['cost_scales']['severity_mm_s']} "
-             f"mm/s + tracking RMS / {result['cost_scales']['tracking_um']} um",
+    lines = [f"Task {result.get('task', 'startup')}, held-out plants: {result['episodes']} episodes, seeds "
+             f"{result['seed']}-{result['seed'] + result['episodes'] - 1}; cost = severity / "
+             f"{result['cost_scales']['severity_mm_s']} mm/s + tracking RMS / {result['cost_scales']['tracking_um']} um; "
+             "CVaR-20 = mean of the worst 20 % of episodes; severity split at 0.1 s",
              "",
-             "| controller | severity mean (mm/s) | median | p95 | tracking RMS mean (um) | zones A/B/C/D | "
-             "diverged | cost mean | cost median |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| controller | cost mean | cost CVaR-20 | severity mean (mm/s) | p95 | first 0.1 s | rest | pump line | "
+             "10-100 Hz | tracking RMS (um) | zones A/B/C/D | diverged |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in result["controllers"].items():
         z = s["iso_zones"]
-        lines.append(f"| {name} | {s['severity_mean']:.2f} | {s['severity_median']:.2f} | {s['severity_p95']:.2f} | "
-                     f"{s['tracking_rms_um_mean']:.1f} | {z['A']}/{z['B']}/{z['C']}/{z['D']} | "
-                     f"{100 * s['diverged_rate']:.0f} % | {s['cost_mean']:.2f} | {s['cost_median']:.2f} |")
+        lines.append(f"| {name} | {s['cost_mean']:.3g} | {s['cost_cvar20']:.3g} | {s['severity_mean']:.3g} | "
+                     f"{s['severity_p95']:.3g} | {s.get('severity_start_mean', math.nan):.3g} | "
+                     f"{s.get('severity_rest_mean', math.nan):.3g} | {s.get('pump_line_mean', math.nan):.3g} | "
+                     f"{s.get('low_band_mean', math.nan):.3g} | {s['tracking_rms_um_mean']:.3g} | "
+                     f"{z['A']}/{z['B']}/{z['C']}/{z['D']} | {100 * s['diverged_rate']:.0f} % |")
+    est = {n: s for n, s in result["controllers"].items() if "c1_log_error_mean" in s}
+    for name, s in est.items():
+        lines.append(f"\n{name}: mean estimation error over the episodes |log10(estimate / true)|: c1 "
+                     f"{s['c1_log_error_mean']:.3f}, Ct {s['ct_log_error_mean']:.3f} (decades)")
     if result.get("scenarios"):
         names = list(result["scenarios"])
         scen = list(next(iter(result["scenarios"].values())))
@@ -128,8 +164,9 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     files = []
     buf = io.StringIO()
-    fields = ["controller", "seed", "c1", "Ct", "severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost",
-              "episode_return"]
+    fields = ["controller", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
+              "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
+              "cost", "episode_return", "c1_log_error", "ct_log_error"]
     writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     writer.writeheader()
     for name, recs in result["records"].items():
@@ -140,7 +177,11 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
     files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
     files.append(_plot_plane(result, out / "severity_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
-    files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png", result["seed"]))
+    if result.get("task", "startup") == "startup":
+        files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png", result["seed"]))
+    else:
+        files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["seed"],
+                                  scenario=None, task=result["task"]))
     return files
 
 
@@ -148,7 +189,8 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
 TRACE_SCENARIO = "low-damping-high-leakage"
 
 
-def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TRACE_SCENARIO) -> Path:
+def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | None = TRACE_SCENARIO,
+                 task: str = "startup") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -157,7 +199,7 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TR
     fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     for k, name in enumerate(names):
         color = f"C{k % 10}"
-        tr = trace_episode(load_controller(name), scenario=scenario, seed=seed)
+        tr = trace_episode(load_controller(name, task), scenario=scenario, seed=seed, task=task)
         info = tr["info"]
         label = f"{name}: {info['severity']:.3g} mm/s, {info['tracking_rms_um']:.3g} um"
         axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label, color=color)
@@ -165,14 +207,17 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str = TR
         if len(tr["gains"]):
             steps = np.arange(len(tr["gains"])) * tr["step_s"] * 1e3
             axes[2].step(steps, np.log10(tr["gains"][:, 0]), where="post", lw=1.0, color=color)
-    axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
-                                       "fixed PIDs against agents")
+    if scenario is not None:
+        axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
+                                           "fixed PIDs against agents")
+        axes[0].set_ylim(-600, 1050)
+    else:
+        axes[0].set(ylabel="x (um)", title=f"Task '{task}', held-out plant {seed}: {tr['info']['params']}"[:110])
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
     axes[2].set(ylabel="log10 KP (gain schedulers)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    axes[0].set_ylim(-600, 1050)
     fig.tight_layout()
     return save_figure(fig, path, dpi=100)
 
@@ -226,8 +271,8 @@ def _plot_bars(result: dict, path: Path) -> Path:
 
 
 def benchmark_from_cli(args) -> int:
-    result = run_benchmark(args.controllers, episodes=args.episodes, seed=args.seed, env_id=args.env,
-                           scenarios=not args.no_scenarios, progress=not args.quiet)
+    result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
+                           scenarios=False if args.no_scenarios else None, progress=not args.quiet)
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

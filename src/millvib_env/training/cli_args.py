@@ -10,6 +10,8 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="algorithm; hyperparameters come from configs/agents/<algo>.yml")
     p.add_argument("--env", default="MillVib-GainSchedule-v0",
                    help="environment id (default MillVib-GainSchedule-v0), the key in the YAML")
+    p.add_argument("--task", default="startup",
+                   help="task whose episodes and training seeds to use: startup, rolling or change (default startup)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0); evaluation plants use seed+1000")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
     p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
@@ -25,16 +27,20 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
 
 
 def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
+    p.add_argument("--task", default="startup",
+                   help="task: startup (the paper's 1 mm start), rolling (steady rolling) or change (the plant "
+                        "changes mid-episode); configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
-                   help="controllers to evaluate: pid-paper pid-nominal pid-robust pid-oracle and agent names "
-                        "(folders under agents/, e.g. ppo-gain) or paths to agent folders (default: all four PIDs "
-                        "and every shipped agent)")
+                   help="controllers to evaluate: pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
+                        "lqr-oracle, agent names (folders under agents/, e.g. ppo-gain) or paths to agent folders "
+                        "(default: every baseline and every shipped agent trained on the task)")
     p.add_argument("--env", default="MillVib-GainSchedule-v0",
                    help="environment id the plants are drawn from (default MillVib-GainSchedule-v0)")
     p.add_argument("--episodes", type=int, default=40, help="held-out plants per controller (default 40)")
-    p.add_argument("--seed", type=int, default=20_000,
-                   help="seed of the held-out plants (default 20000; training and tuning use other seeds)")
-    p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios")
+    p.add_argument("--seed", type=int, default=None,
+                   help="first episode seed of the held-out plants (default: the task's first held-out seed, "
+                        "20000 for startup; a seed outside the task's held-out range is refused)")
+    p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios (startup only)")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -15,6 +15,7 @@ import numpy as np
 
 from millvib_env.control.policies import Controller
 from millvib_env.envs.vec_env import MillVibVecEnv
+from millvib_env.tasks import get_task
 
 __all__ = ["run_episodes", "episode_cost", "COST_SCALES"]
 
@@ -27,20 +28,35 @@ def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | No
     return severity_mm_s / s["severity_mm_s"] + tracking_rms_um / s["tracking_um"]
 
 
+def env_kwargs_for(controller: Controller, task: str | None = None, env_kwargs: dict | None = None) -> dict:
+    """The environment keyword arguments a controller runs with on a task: the task's config, then
+    the controller's own settings (e.g. its training reward or pressure feedback), then `env_kwargs`."""
+    from millvib_env.envs.config import _merge
+
+    kwargs = {"config": get_task(task).config} if task is not None else {}
+    return _merge(_merge(kwargs, controller.env_kwargs), env_kwargs or {})
+
+
 def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,
                  env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
-                 progress: bool = False, desc: str = "") -> list[dict]:
-    """Run one episode per seed with `controller`; return per-episode metrics (in seed order)."""
+                 progress: bool = False, desc: str = "", task: str | None = None) -> list[dict]:
+    """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
+
+    `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
+    are merged on top). Controllers that estimate the plant get every step's measured signals.
+    """
     env_id = env_id or controller.env_id
-    kwargs = {**controller.env_kwargs, **(env_kwargs or {})}
+    kwargs = env_kwargs_for(controller, task, env_kwargs)
     n = len(seeds)
     venv = MillVibVecEnv(env_id, n, **kwargs)
+    venv.core.record_signals = controller.needs_signals
     venv._seeds = [int(s) for s in seeds]
     if scenario is not None:
         venv.set_options({"scenario": scenario})
     obs = venv.reset()
     controller.on_reset(venv.reset_infos, range(n))
     records: list[dict | None] = [None] * n
+    first_params = [dict(info["params"]) for info in venv.reset_infos]
     state = None
     episode_start = np.ones(n, dtype=bool)
     bar = None
@@ -51,16 +67,22 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
         action, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         obs, _, dones, infos = venv.step(action)
         episode_start = dones
+        controller.on_step(infos)
         finished = np.flatnonzero(dones)
         for i in finished:
             if records[i] is None:
                 info = infos[i]
                 sev, trk = float(info["severity"]), float(info["tracking_rms_um"])
-                records[i] = {"seed": int(seeds[i]), "scenario": scenario, "c1": info["params"]["c1"],
-                              "Ct": info["params"]["Ct"], "severity_mm_s": sev, "tracking_rms_um": trk,
+                records[i] = {"seed": int(seeds[i]), "scenario": scenario, "c1": first_params[i]["c1"],
+                              "Ct": first_params[i]["Ct"],
+                              "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
+                              "severity_mm_s": sev, "tracking_rms_um": trk,
                               "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),
                               "cost": episode_cost(sev, trk, scales) if math.isfinite(sev) else math.inf,
-                              "episode_return": float(info["episode_return"]), "steps": int(info["episode_steps"])}
+                              "severity_start_mm_s": info["severity_start"], "severity_rest_mm_s": info["severity_rest"],
+                              "pump_line_mm_s": info["pump_line_mm_s"], "low_band_mm_s": info["low_band_mm_s"],
+                              "episode_return": float(info["episode_return"]), "steps": int(info["episode_steps"]),
+                              **controller.episode_extras(i)}
                 if bar is not None:
                     bar.update(1)
         if len(finished):
@@ -71,13 +93,14 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
 
 
 def trace_episode(controller: Controller, *, scenario: str | None = None, seed: int = 0,
-                  env_kwargs: dict | None = None) -> dict:
+                  env_kwargs: dict | None = None, task: str | None = None) -> dict:
     """One episode with every plant sample kept: t, x, v, a, u (10 kHz) and, in gain mode, the gains
     of every agent step (empty for valve policies)."""
     from millvib_env.plant.model import A_ACC, A_U, IV, IX
 
-    kwargs = {**controller.env_kwargs, **(env_kwargs or {})}
+    kwargs = env_kwargs_for(controller, task, env_kwargs)
     venv = MillVibVecEnv(controller.env_id, 1, **kwargs)
+    venv.core.record_signals = controller.needs_signals
     venv._seeds = [seed]
     if scenario is not None:
         venv.set_options({"scenario": scenario})
@@ -90,9 +113,10 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     while True:
         action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
         if core.mode == "gain":
-            gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0])
+            gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0][:3])
         obs, _, done, infos = venv.step(action)
         start = done
+        controller.on_step(infos)
         n = core.n_samp
         parts["x"].append(core.YS[0, 1:n + 1, IX].copy())
         parts["v"].append(core.YS[0, 1:n + 1, IV].copy())

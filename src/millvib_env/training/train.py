@@ -6,8 +6,10 @@ as in the zoo). A run folder LOG_DIR/<algo>_<env>_s<seed>/ receives TensorBoard 
 checkpoints (model and VecNormalize statistics), the best model by periodic evaluation, and at
 the end model.zip, vecnormalize.pkl and card.json (command, seed, steps, wall time, evaluation).
 
-Seeds: training environments use seed * 100 + i, the evaluation environments 5000 + seed * 100 + i;
-PID tuning uses 10000-10999 and the benchmark 20000 and up, so held-out plants are never trained on.
+Seeds come from the task (configs/tasks.yaml): training environments use the task's first
+training seed + 100 * seed + i, the evaluation environments 5000 further on; PID tuning, model
+cards (validation) and the benchmark (held-out) have their own ranges, so held-out plants are
+never trained on.
 """
 
 from __future__ import annotations
@@ -28,10 +30,8 @@ from millvib_env._yaml import load_yaml
 __all__ = ["load_hyperparams", "train", "train_from_cli", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
-#: validation plants for design decisions and model cards (never the benchmark's 20000 and up)
-VALIDATION_SEEDS = range(15_000, 15_040)
-TRAIN_SEED_STRIDE = 100
-EVAL_SEED_OFFSET = 5000
+#: validation plants per model card: the first of the task's validation seeds
+N_VALIDATION = 40
 
 
 def _algo_class(algo: str):
@@ -80,7 +80,8 @@ def _latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
     return last, (stats if stats.exists() else None), steps
 
 
-def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, n_timesteps: int | None = None,
+def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "startup", seed: int = 0,
+          n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
           progress: bool = True, command: str | None = None) -> dict:
@@ -90,9 +91,12 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, 
     from stable_baselines3.common.vec_env import VecNormalize
 
     from millvib_env.envs.vec_env import make_vec_env
+    from millvib_env.tasks import get_task
 
     algo = algo.lower()
     cls = _algo_class(algo)
+    the_task = get_task(task)
+    train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
     n_envs = int(hp.pop("n_envs"))
     total = int(n_timesteps if n_timesteps is not None else hp.pop("n_timesteps"))
@@ -100,13 +104,16 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, 
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
     env_kwargs = dict(hp.pop("env_kwargs", None) or {})
+    if the_task.name != "startup":
+        env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give; the plant kernel has its own
 
-    run = Path(log_dir) / f"{algo}_{env_id}_s{seed}"
+    run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
+                           else f"{algo}_{env_id}_{the_task.name}_s{seed}")
     ckpt_dir = run / "checkpoints"
     run.mkdir(parents=True, exist_ok=True)
-    venv = make_vec_env(env_id, n_envs, seed=seed * TRAIN_SEED_STRIDE, **env_kwargs)
-    eval_env = make_vec_env(env_id, n_eval_episodes, seed=EVAL_SEED_OFFSET + seed * TRAIN_SEED_STRIDE, **env_kwargs)
+    venv = make_vec_env(env_id, n_envs, seed=train_seed, **env_kwargs)
+    eval_env = make_vec_env(env_id, n_eval_episodes, seed=eval_seed, **env_kwargs)
     norm_kwargs = normalize if isinstance(normalize, dict) else ({} if normalize else None)
     latest = _latest_checkpoint(ckpt_dir) if resume else None
     if resume and latest is None:
@@ -138,10 +145,11 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, seed: int = 0, 
     if isinstance(venv, VecNormalize):
         venv.save(str(run / "vecnormalize.pkl"))
     evals = np.load(run / "eval" / "evaluations.npz") if (run / "eval" / "evaluations.npz").exists() else None
-    card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}", "algo": algo, "env_id": env_id,
-            "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
+    suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
+    card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
+            "task": the_task.name, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
             "wall_time_s": round(wall, 1), "command": command or f"millvib train --algo {algo} --env {env_id} "
-                                                                  f"--seed {seed}",
+                                                                  f"--task {the_task.name} --seed {seed}",
             "hyperparameters": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else repr(v))
                                 for k, v in hp.items()},
             "policy": policy, "normalize": repr(normalize),
@@ -170,16 +178,21 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     from millvib_env.training.benchmark import summarize
     from millvib_env.training.evaluate import run_episodes
 
+    from millvib_env.tasks import get_task
+
     folder = Path(folder)
     if card is not None:  # the card is written after this: give the loader what it needs
         write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
-    summary = summarize(run_episodes(AgentPolicy(folder), list(VALIDATION_SEEDS)))
-    keep = ("severity_mean", "tracking_rms_um_mean", "cost_mean", "diverged_rate", "episodes")
-    return {"seeds": f"{VALIDATION_SEEDS.start}-{VALIDATION_SEEDS.stop - 1}", **{k: summary[k] for k in keep}}
+    agent = AgentPolicy(folder)
+    first = get_task(agent.task).seeds["validation"].start
+    seeds = list(range(first, first + N_VALIDATION))
+    summary = summarize(run_episodes(agent, seeds, task=agent.task))
+    keep = ("severity_mean", "tracking_rms_um_mean", "cost_mean", "cost_cvar20", "diverged_rate", "episodes")
+    return {"seeds": f"{seeds[0]}-{seeds[-1]}", **{k: summary[k] for k in keep}}
 
 
 def train_from_cli(args) -> int:
-    card = train(args.algo, args.env, seed=args.seed, n_timesteps=args.n_timesteps, config=args.config,
+    card = train(args.algo, args.env, task=args.task, seed=args.seed, n_timesteps=args.n_timesteps, config=args.config,
                  log_dir=args.log_dir, save_dir=args.save_dir, resume=args.resume, eval_freq=args.eval_freq,
                  n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
                  progress=not args.quiet, command="millvib " + " ".join(sys.argv[1:]))

@@ -1,0 +1,237 @@
+"""`pid-adaptive`: a classical adaptive gain scheduler (online estimation + certainty equivalence).
+
+What it measures is what a mill's data acquisition records, sampled at 10 kHz: piston position,
+velocity and acceleration, chamber and supply pressure, the servo-amplifier command and the
+rolling force from the stand's load cells (``info["signals"]`` of the environments). What it knows is the plant's data sheet, Table 1, for
+everything but the two parameters that drift: the damping c1 and the leakage Ct.
+
+Estimation, once per decision period, by least squares with exponential forgetting (recursive
+least squares in information form: the information matrix and vector decay by
+``exp(-period / tau_s)`` and gain that period's samples):
+
+* leakage, from the continuity equation (4) integrated over the period:
+  ``int(QL - Ap v) dt - (Ap (L1 + x) / beta_e) dpL = Ct int(pL - pb) dt``, with the valve flow QL
+  computed from the measured command and pressures through the valve's data-sheet model (1)-(3);
+* damping, from the force balance (8): ``mt (a_model - a) - (FL(t) - FL) = c1 v``, where a_model
+  is the plant's own right-hand side (`plant_rhs`, the one implementation) evaluated at the
+  measured x, v, pL with c1 = 0 and the nominal load, FL(t) the load cells' rolling force, and
+  the seal friction's bristle state comes from an observer that integrates the same right-hand
+  side's bristle rate (trapezoidal rule) along the measured velocity. Both sides are high-passed
+  at `highpass_hz` against slow model errors; c1 is the regression coefficient on the velocity.
+
+Gains: the oracle's table (`GainTable`, tuned offline per plant) at the estimated (c1, Ct), the
+certainty-equivalence principle; until the damping regression has gathered `min_info` (enough
+motion above the high-pass), the pid-robust gains.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy import signal as ssig
+
+from millvib_env.control.policies import GainTable, PerEnvGains
+from millvib_env.envs.actions import GainMap
+from millvib_env.params import MillParams
+from millvib_env.plant.model import D_KQ, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
+
+
+@njit(cache=True)
+def model_acceleration(t, x, v, pL, z0, p, out):
+    """Acceleration of the plant model `p` (c1 = 0 there) at the measured samples, with the bristle
+    state integrated along the measured velocity (trapezoidal rule on plant_rhs's bristle rate,
+    which is affine in z; the trapezoidal rule adds no phase lag, which would read as damping).
+    Writes out[k]; returns the bristle state after the last sample."""
+    y = np.zeros(NY)
+    dy = np.empty(NY)
+    aux = np.empty(NAUX)
+    c = np.zeros(NC)
+    z_ref = p[P_FS] / p[P_S0]
+    z = z0
+    d_prev = 0.0
+    r_prev = 0.0
+    for k in range(x.shape[0]):
+        y[IX] = x[k]
+        y[IV] = v[k]
+        y[IPL] = pL[k]
+        y[IZ] = 0.0
+        plant_rhs(t[k], y, p, c, dy, aux)
+        dz0 = dy[IZ]
+        y[IZ] = z_ref
+        plant_rhs(t[k], y, p, c, dy, aux)
+        rate = (dz0 - dy[IZ]) / z_ref  # dz/dt = dz0 - rate * z (LuGre is affine in z)
+        if k > 0:
+            h = 0.5 * (t[k] - t[k - 1])
+            z = (z * (1.0 - h * r_prev) + h * (d_prev + dz0)) / (1.0 + h * rate)
+        d_prev, r_prev = dz0, rate
+        y[IZ] = z
+        plant_rhs(t[k], y, p, c, dy, aux)
+        out[k] = dy[IV]
+    return z
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """tau_s: forgetting time constant (s); highpass_hz: high-pass of the damping regression;
+    min_info: excitation needed before the damping estimate is used, as the forgotten sum of
+    (high-passed velocity / 1 mm/s)^2 over samples."""
+
+    tau_s: float = 0.2
+    highpass_hz: float = 10.0
+    min_info: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name in ("tau_s", "highpass_hz", "min_info"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value <= 0:
+                raise ValueError(f"EstimatorSettings.{name} = {value!r} is invalid: a finite number > 0")
+
+
+class PlantEstimator:
+    """Online estimates of c1 and Ct for a batch of environments (module docstring)."""
+
+    C1_RANGE = (1.0e4, 1.0e8)
+    CT_RANGE = (1.0e-17, 1.0e-7)
+    V_SCALE = 1e-3  # m/s: regressor scaling
+
+    def __init__(self, params: MillParams, settings: EstimatorSettings, sample_rate_hz: float = 10_000.0):
+        self.params, self.settings, self.fs = params, settings, sample_rate_hz
+        p = pack(params)
+        self.kq = float(p[D_KQ])
+        self.p_model = pack(params.replace(c1=0.0))  # valve flow gain Cd W sqrt(2/rho) Ksv Kp1 (data sheet)
+        self.sos = ssig.butter(2, settings.highpass_hz, btype="highpass", fs=sample_rate_hz, output="sos")
+        self.n = 0
+        self.reset_all(0)
+
+    def reset_all(self, n: int) -> None:
+        self.n = n
+        self.R = np.zeros(n)
+        self.r = np.zeros(n)
+        self.z = np.zeros(n)
+        self.ct_num = np.zeros(n)
+        self.ct_den = np.zeros(n)
+        self.zi = np.zeros((n, 2, self.sos.shape[0], 2))
+        self.c1_hat = np.full(n, np.nan)
+        self.ct_hat = np.full(n, np.nan)
+        self.flow_prev: list = [None] * n
+        self.last: list = [None] * n
+        self.err_c1: list[list[float]] = [[] for _ in range(n)]
+        self.err_ct: list[list[float]] = [[] for _ in range(n)]
+
+    def grow(self, n: int) -> None:
+        if n <= self.n:
+            return
+        names = ("R", "r", "z", "ct_num", "ct_den", "zi", "c1_hat", "ct_hat", "flow_prev", "last", "err_c1", "err_ct")
+        old, k = {name: getattr(self, name) for name in names}, self.n
+        self.reset_all(n)
+        for name in names:
+            getattr(self, name)[:k] = old[name]
+
+    def start(self, i: int) -> None:
+        self.R[i] = self.r[i] = self.z[i] = 0.0
+        self.ct_num[i] = self.ct_den[i] = 0.0
+        self.zi[i] = 0.0
+        self.c1_hat[i] = self.ct_hat[i] = np.nan
+        self.flow_prev[i] = None
+        self.err_c1[i], self.err_ct[i] = [], []
+        self.last[i] = None
+
+    def valve_flow(self, u: np.ndarray, pL: np.ndarray, ps: np.ndarray) -> np.ndarray:
+        """QL from the valve's data-sheet model (1)-(3) with the plant's regularised root."""
+        p = self.params
+        dp = np.where(u >= 0.0, ps - pL, pL - p.pt)
+        return self.kq * u * dp / np.sqrt(np.sqrt(dp * dp + p.dp_reg**2))
+
+    def update(self, i: int, sig: dict) -> None:
+        p, dt = self.params, 1.0 / self.fs
+        m = sig["x"].size
+        decay = math.exp(-m * dt / self.settings.tau_s)
+        # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
+        net = self.valve_flow(sig["u"], sig["pL"], sig["ps"]) - p.Ap * sig["v"]
+        comp = p.Ap * (p.L1 + sig["x"]) / p.beta_e  # oil compliance V / beta_e
+        lk = sig["pL"] - p.pb
+        prev = self.flow_prev[i]
+        if prev is not None:
+            net, comp, lk, pl = (np.concatenate([[a], b]) for a, b in zip(prev, (net, comp, lk, sig["pL"])))
+        else:
+            pl = sig["pL"]
+        if pl.size > 1:
+            lhs = np.sum(0.5 * (net[1:] + net[:-1]) * dt - 0.5 * (comp[1:] + comp[:-1]) * np.diff(pl))
+            rhs = np.sum(0.5 * (lk[1:] + lk[:-1]) * dt)
+            self.ct_num[i] = decay * self.ct_num[i] + lhs * rhs
+            self.ct_den[i] = decay * self.ct_den[i] + rhs * rhs
+        self.flow_prev[i] = (net[-1], comp[-1], lk[-1], pl[-1])
+        if self.ct_den[i] > 0:
+            self.ct_hat[i] = float(np.clip(self.ct_num[i] / self.ct_den[i], *self.CT_RANGE))
+        # damping: the force balance's residual against the model without damping, high-passed
+        cols = [sig[k] for k in ("t", "x", "v", "pL")]
+        if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
+            cols = [np.concatenate([[prev], col]) for prev, col in zip(self.last[i], cols)]
+        a_model = np.empty(cols[0].size)
+        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model)
+        a_model = a_model[-m:]
+        self.last[i] = tuple(col[-1] for col in cols)
+        force = p.mt * (a_model - sig["a"]) - (sig["FL"] - p.FL)
+        phi, self.zi[i, 0] = ssig.sosfilt(self.sos, sig["v"] / self.V_SCALE, zi=self.zi[i, 0])
+        rhs_f, self.zi[i, 1] = ssig.sosfilt(self.sos, force, zi=self.zi[i, 1])
+        self.R[i] = decay * self.R[i] + phi @ phi
+        self.r[i] = decay * self.r[i] + phi @ rhs_f
+        if self.R[i] >= self.settings.min_info:
+            self.c1_hat[i] = float(np.clip(self.r[i] / self.R[i] / self.V_SCALE, *self.C1_RANGE))
+
+    def record_error(self, i: int, c1: float, ct: float) -> None:
+        if math.isfinite(self.c1_hat[i]):
+            self.err_c1[i].append(abs(math.log10(self.c1_hat[i] / c1)))
+        if math.isfinite(self.ct_hat[i]):
+            self.err_ct[i].append(abs(math.log10(self.ct_hat[i] / ct)))
+
+
+class AdaptivePolicy(PerEnvGains):
+    """`pid-adaptive`: the oracle's gains at the online estimate of (c1, Ct)."""
+
+    name = "pid-adaptive"
+    needs_signals = True
+
+    def __init__(self, table: GainTable, gain_map: GainMap, fallback_gains: np.ndarray, settings: EstimatorSettings,
+                 params: MillParams):
+        self.table, self.gain_map = table, gain_map
+        self.fallback = np.asarray(fallback_gains, float)
+        self.estimator = PlantEstimator(params, settings)
+        self.nominal = params
+        self._actions = None
+
+    def gains_for(self, c1: float, ct: float) -> np.ndarray:
+        if not math.isfinite(c1):
+            return self.fallback
+        return self.table(c1, ct if math.isfinite(ct) else self.nominal.Ct)
+
+    def on_reset(self, infos, indices) -> None:
+        self._ensure(max(indices) + 1)
+        self.estimator.grow(self._actions.shape[0])
+        for i in indices:
+            self.estimator.start(i)
+            self._set(i, {"c1": np.nan, "Ct": np.nan})
+
+    def on_step(self, infos) -> None:
+        self._ensure(len(infos))
+        self.estimator.grow(len(infos))
+        for i, info in enumerate(infos):
+            if "signals" not in info:
+                raise ValueError("pid-adaptive needs the measured signals: set the env core's record_signals "
+                                 "(the benchmark's evaluation loop does)")
+            self.estimator.update(i, info["signals"])
+            self.estimator.record_error(i, info["params"]["c1"], info["params"]["Ct"])
+            self._set(i, {"c1": self.estimator.c1_hat[i], "Ct": self.estimator.ct_hat[i]})
+
+    def _set(self, i: int, params: dict) -> None:
+        self._plant[i] = (params["c1"], params["Ct"])
+        self._actions[i] = self.gain_map.action(self.gains_for(params["c1"], params["Ct"]))
+
+    def episode_extras(self, i: int) -> dict:
+        e1, et = self.estimator.err_c1[i], self.estimator.err_ct[i]
+        return {"c1_log_error": float(np.mean(e1)) if e1 else math.nan,
+                "ct_log_error": float(np.mean(et)) if et else math.nan}

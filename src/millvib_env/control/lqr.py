@@ -1,0 +1,79 @@
+"""LQR with integral action for the PID + pressure-feedback structure: the `lqr-oracle` reference.
+
+On the open-loop plant linearised at steady operation (`analysis.linear.linearize`: valve command
+-> position, velocity, chamber pressure) augmented with the integral of the position error
+xi = int(xd - x) dt, the LQR state feedback u - u0 = -K [x - xd, v, pL - pL0, xi] *is* a PID with
+pressure feedback:
+
+    u = KP e + uI - KD v - KPL (pL - pL_ref),   uI = KI xi,
+    KP = K_x,  KD = K_v,  KPL = K_p,  KI = -K_xi.
+
+So the reference runs in the gain-schedule environment with its pressure-feedback action, with
+gains designed for the episode's true c1 and Ct (an oracle: not deployable). The weights are in
+scaled coordinates (x / 10 um, v / 1 mm/s, pL / 1 MPa, xi / (10 um x 10 ms), u / 10 V) and were
+tuned per task on its tuning seeds (configs/control/<task>.yaml).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from millvib_env.analysis.linear import linearize
+from millvib_env.params import MillParams
+
+__all__ = ["LQRWeights", "lqr_design", "lqr_gains", "STATE_SCALES", "U_SCALE_V"]
+
+#: scales of (x, v, pL, xi) that make the weights O(1)
+STATE_SCALES = np.array([1e-5, 1e-3, 1e6, 1e-7])
+U_SCALE_V = 10.0
+
+
+@dataclass(frozen=True)
+class LQRWeights:
+    """Diagonal LQR weights in scaled coordinates (see the module docstring) and the friction
+    linearisation the design uses ('stick' or 'sliding')."""
+
+    q_x: float = 1.0
+    q_v: float = 1.0
+    q_p: float = 1e-3
+    q_i: float = 1.0
+    r: float = 1.0
+    friction: str = "sliding"
+
+    def __post_init__(self) -> None:
+        for name in ("q_x", "q_v", "q_p", "q_i", "r"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"LQRWeights.{name} = {value!r} is invalid: a finite number >= 0")
+        if self.r <= 0:
+            raise ValueError(f"LQRWeights.r = {self.r!r} is invalid: must be > 0")
+        if self.friction not in ("stick", "sliding"):
+            raise ValueError(f"LQRWeights.friction = {self.friction!r} is invalid: 'stick' or 'sliding'")
+
+
+def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0):
+    """(K, A_cl, A_aug, B_aug) of the scaled-coordinate design, K in SI units (V per unit state)."""
+    ss = linearize(params, xd, friction=weights.friction)
+    A = np.zeros((4, 4))
+    A[:3, :3] = ss.A
+    A[3, 0] = -1.0  # d xi / dt = e = -(x - xd)
+    B = np.zeros((4, 1))
+    B[:3] = ss.B
+    T = STATE_SCALES
+    A_s = A * T[None, :] / T[:, None]
+    B_s = B * U_SCALE_V / T[:, None]
+    Q = np.diag([weights.q_x, weights.q_v, weights.q_p, weights.q_i])
+    R = np.array([[weights.r]])
+    P = linalg.solve_continuous_are(A_s, B_s, Q, R)
+    K_s = np.linalg.solve(R, B_s.T @ P)
+    K = (U_SCALE_V * K_s / T[None, :])[0]
+    return K, A - B @ K[None, :], A, B
+
+
+def lqr_gains(params: MillParams, weights: LQRWeights, xd: float = 0.0) -> np.ndarray:
+    """(KP, KI, KD, KPL) of the LQR design for `params`; KP may be negative (see `LQRPolicy`)."""
+    K, _, _, _ = lqr_design(params, weights, xd)
+    return np.array([K[0], -K[3], K[1], K[2]])

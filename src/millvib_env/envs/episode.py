@@ -1,0 +1,109 @@
+"""The draw of one episode: its plant, start and disturbances, from one episode seed.
+
+Each episode seed spawns three children of a `SeedSequence`: the plant (randomised parameters and
+the start's jitter), the disturbances, and the sensor noise. A scenario or pinned parameters
+replace draws but never skip them, so the other streams stay the same.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from millvib_env.envs.config import EnvConfig
+from millvib_env.envs.disturbances import EpisodeProfile
+from millvib_env.params import PARAM_FIELDS, MillParams
+from millvib_env.plant.model import initial_state, settled_state
+
+__all__ = ["Episode", "draw_episode", "check_reset_options", "RESET_OPTIONS"]
+
+RESET_OPTIONS = ("params", "scenario", "x0")
+
+
+@dataclass
+class Episode:
+    params: MillParams
+    profile: EpisodeProfile
+    y0: np.ndarray
+    x0: float
+    scenario: str | None
+    noise_rng: np.random.Generator
+
+
+def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
+    """Validated reset options (ValueError naming the option otherwise)."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"reset options = {options!r} is invalid: a dict with keys {list(RESET_OPTIONS)}")
+    unknown = set(options) - set(RESET_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {sorted(unknown)}: use {', '.join(map(repr, RESET_OPTIONS))}")
+    out = dict(options)
+    params = out.get("params")
+    if params is not None:
+        if not isinstance(params, Mapping):
+            raise ValueError(f"reset option params = {params!r} is invalid: a dict of plant parameters")
+        bad = set(params) - set(PARAM_FIELDS)
+        if bad:
+            raise ValueError(f"reset option params: unknown plant parameter(s) {sorted(bad)}; known: "
+                             f"{list(PARAM_FIELDS)}")
+        for k, v in params.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise ValueError(f"reset option params.{k} = {v!r} is invalid: must be a number")
+        config.base_params.replace(**{k: float(v) for k, v in params.items()})  # range checks
+    scenario = out.get("scenario")
+    if scenario is not None and not isinstance(scenario, str):
+        raise ValueError(f"reset option scenario = {scenario!r} is invalid: a scenario name")
+    x0 = out.get("x0")
+    if x0 is not None:
+        x_max = config["envelope"]["x_max_m"]
+        if isinstance(x0, bool) or not isinstance(x0, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(x0) or abs(x0) >= x_max:
+            raise ValueError(f"reset option x0 = {x0!r} m is invalid: a finite displacement with |x0| < "
+                             f"envelope.x_max_m = {x_max} m")
+    return out
+
+
+def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctrl: int,
+                 options: dict[str, Any]) -> Episode:
+    """Draw the episode of `episode_seed` (options already checked by `check_reset_options`)."""
+    plant_ss, dist_ss, noise_ss = np.random.SeedSequence(episode_seed).spawn(3)
+    plant_rng, dist_rng = np.random.default_rng(plant_ss), np.random.default_rng(dist_ss)
+    initial = config["initial"]
+    pinned: dict[str, float] = {}
+    x0 = float(initial.get("x0_m", 0.0))
+    jitter = float(initial.get("x0_jitter_m", 0.0) or 0.0)
+    settled = bool(initial.get("settled", False))
+    scenario = options.get("scenario")
+    if scenario is not None:
+        from millvib_env.envs.scenarios import get_scenario
+
+        sc = get_scenario(scenario)
+        # a scenario is a fixed plant: the config's base plant plus its own changes
+        pinned.update({d.name: getattr(config.base_params, d.name) for d in config.randomize})
+        pinned.update(sc.params)
+        x0, jitter, settled = sc.x0_m, 0.0, False
+        if sc.quiet:
+            disturbances = []
+    if options.get("params"):
+        pinned.update({k: float(v) for k, v in options["params"].items()})
+    draws = {d.name: d.sample(plant_rng) for d in config.randomize}  # always drawn: same stream
+    draws.update(pinned)
+    params = config.base_params.replace(**draws)
+    if options.get("x0") is not None:
+        x0, jitter, settled = float(options["x0"]), 0.0, False
+    x0 = x0 + (plant_rng.uniform(-jitter, jitter) if jitter else 0.0)
+
+    profile = EpisodeProfile(n_ctrl, config.control_dt_s)
+    for d in disturbances:
+        d.apply(dist_rng, profile, params)
+    if settled:
+        y0 = settled_state(params, xd=float(profile.xd[0]), dFL=float(profile.dFL[0]))
+        x0 = float(y0[0])
+    else:
+        y0 = initial_state(params, x0=x0)
+    return Episode(params, profile, y0, x0, scenario, np.random.default_rng(noise_ss))

@@ -1,0 +1,85 @@
+"""What the agent sees: the observation channels, their scaling and the sensor noise and delay.
+
+Signed-log channels are ``sign(q) ln(1 + |q|/q0) / ln(1 + q_max/q0)``, clipped to [-1, 1], so
+micrometre errors and millimetre transients both stay visible.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["slog", "OBS_SCALES", "PARAM_OBS_RANGES", "Observer"]
+
+#: with observe_params, log c1 and log Ct are mapped linearly from these ranges to [-1, 1]
+PARAM_OBS_RANGES = {"c1": (1.25e5, 2.25e6), "Ct": (5e-16, 5e-9)}
+
+# observation scales: (name, unit, q0, q_max) for the signed-log channels
+OBS_SCALES = {
+    "error": ("position error xd - x", "m", 1e-6, 5e-3),
+    "velocity": ("piston velocity", "m/s", 1e-4, 5.0),
+    "acceleration": ("piston acceleration (accelerometer)", "m/s^2", 1e-2, 1e5),
+    "vibration": ("running RMS of band-limited (10-1000 Hz) velocity", "mm/s", 1e-2, 1e4),
+}
+
+
+def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
+    """Signed log scaling to [-1, 1]: sign(q) ln(1 + |q|/q0) / ln(1 + q_max/q0), clipped."""
+    return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / math.log1p(q_max / q0), -1.0, 1.0)
+
+
+class Observer:
+    """Builds the observation vectors of a batch of environments in one mode."""
+
+    def __init__(self, mode: str, *, residual: bool, gain_names: tuple[str, ...], observe_phase: bool,
+                 observe_params: bool, noise, delay: int, n: int):
+        self.mode, self.residual, self.noise, self.delay = mode, residual, noise, delay
+        self.observe_phase, self.observe_params = observe_phase, observe_params
+        names = ["error", "velocity", "acceleration", "pressure", "vibration"]
+        if mode == "gain":
+            names += [f"log_{g}" for g in gain_names]
+        else:
+            names += ["last_action"] + (["pid_command"] if residual else [])
+        if observe_phase:
+            names += ["pump_sin", "pump_cos"]
+        if observe_params:
+            names += ["log_c1", "log_Ct"]
+        self.names = names
+        self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
+
+    def build(self, idx: np.ndarray, noise_rngs, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
+              params) -> np.ndarray:
+        """Observation rows for environments `idx` (sensor noise applied to e, v, a).
+
+        control: the gain-action channels (gain mode) or the last action (valve mode); phase: the
+        pump's phase angle (rad); params: (c1, Ct) pairs of the current plants.
+        """
+        if self.noise is not None:
+            noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
+            e, v, a = e - noise[:, 0], v + noise[:, 1], a + noise[:, 2]
+        cols = [slog(e, *OBS_SCALES["error"][2:]), slog(v, *OBS_SCALES["velocity"][2:]),
+                slog(a, *OBS_SCALES["acceleration"][2:]), np.clip((pL - ps / 2) / ps, -1, 1),
+                slog(vib_rms * 1e3, *OBS_SCALES["vibration"][2:])]
+        cols += list(np.atleast_2d(control).T) if self.mode == "gain" else [control]
+        if self.mode == "valve" and self.residual:
+            cols.append(np.clip(u_pid, -1, 1))
+        if self.observe_phase:
+            cols += [np.sin(phase), np.cos(phase)]
+        if self.observe_params:
+            for k, (lo, hi) in enumerate(PARAM_OBS_RANGES.values()):
+                vals = np.log(np.asarray(params)[:, k])
+                cols.append(np.clip(2 * (vals - math.log(lo)) / (math.log(hi) - math.log(lo)) - 1, -1, 1))
+        return np.stack(cols, axis=1).astype(np.float32)
+
+    def start(self, i: int, obs: np.ndarray) -> np.ndarray:
+        """A new episode in environment i: the delay line holds its first observation."""
+        self.buffer[i] = obs
+        return self.buffer[i, 0].copy()
+
+    def push(self, obs: np.ndarray) -> np.ndarray:
+        """Append this step's observations of every environment; return what the agent sees."""
+        if self.delay:
+            self.buffer[:, 1:] = self.buffer[:, :-1]
+        self.buffer[:, 0] = obs
+        return self.buffer[:, -1].copy()

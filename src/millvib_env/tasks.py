@@ -1,0 +1,108 @@
+"""The benchmark's tasks (startup, rolling, change) and their disjoint seed ranges (configs/tasks.yaml).
+
+A task is an environment config plus four seed ranges: training, tuning, validation and held-out.
+Everything that draws plants for a purpose (training, PID tuning, model cards, the benchmark)
+takes its seeds from here, so no held-out plant is ever trained or tuned on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+from millvib_env._paths import config_dir
+from millvib_env._yaml import load_yaml
+
+__all__ = ["Task", "get_task", "list_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
+
+SEED_PURPOSES = ("training", "tuning", "validation", "heldout")
+TASK_ALIASES = {"default": "startup"}
+#: training seeds 0..MAX_TRAINING_SEED (100 environment seeds each, evaluation 5000 further on)
+MAX_TRAINING_SEED = 49
+TRAIN_SEED_STRIDE = 100
+EVAL_SEED_OFFSET = 5000
+
+
+@dataclass(frozen=True)
+class Task:
+    name: str
+    config: str
+    description: str
+    seeds: dict  # purpose -> range (inclusive bounds in the file, a Python range here)
+
+    def train_env_seed(self, seed: int) -> int:
+        """First environment seed of training seed `seed` (environment i uses this + i)."""
+        self._check_training_seed(seed)
+        return self.seeds["training"].start + TRAIN_SEED_STRIDE * seed
+
+    def eval_env_seed(self, seed: int) -> int:
+        self._check_training_seed(seed)
+        return self.seeds["training"].start + EVAL_SEED_OFFSET + TRAIN_SEED_STRIDE * seed
+
+    def _check_training_seed(self, seed: int) -> None:
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_TRAINING_SEED:
+            raise ValueError(f"training seed {seed!r} is invalid: an integer in [0, {MAX_TRAINING_SEED}]")
+
+    def purpose_of(self, seed: int) -> str | None:
+        for purpose, rng in self.seeds.items():
+            if seed in rng:
+                return purpose
+        return None
+
+    def check_heldout(self, seeds) -> None:
+        """Refuse held-out seeds outside the task's held-out range (they may be training plants)."""
+        rng = self.seeds["heldout"]
+        bad = [s for s in seeds if s not in rng]
+        if bad:
+            where = self.purpose_of(bad[0]) or "no declared range"
+            raise ValueError(f"seed {bad[0]} is not a held-out plant of task {self.name!r} (it falls in {where}); "
+                             f"held-out seeds are {rng.start}-{rng.stop - 1} (configs/tasks.yaml)")
+
+
+@lru_cache(maxsize=None)
+def _load() -> dict[str, Task]:
+    path = config_dir() / "tasks.yaml"
+    try:
+        data = load_yaml(path)
+    except Exception as err:
+        raise ValueError(f"task file {path} cannot be read: {str(err).splitlines()[0]}") from None
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"task file {path} must map task names to {{config, description, seeds}}")
+    tasks: dict[str, Task] = {}
+    spans: list[tuple[int, int, str]] = []
+    for name, entry in data.items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("config"), str):
+            raise ValueError(f"task file {path}: {name}.config must name an environment config")
+        seeds = entry.get("seeds")
+        if not isinstance(seeds, dict) or set(seeds) != set(SEED_PURPOSES):
+            raise ValueError(f"task file {path}: {name}.seeds must have exactly {list(SEED_PURPOSES)}")
+        ranges = {}
+        for purpose in SEED_PURPOSES:
+            pair = seeds[purpose]
+            if (not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                                       for v in pair) or not 0 <= pair[0] <= pair[1]):
+                raise ValueError(f"task file {path}: {name}.seeds.{purpose} = {pair!r} must be [first, last] "
+                                 "integers, 0 <= first <= last")
+            ranges[purpose] = range(pair[0], pair[1] + 1)
+            spans.append((pair[0], pair[1], f"{name}.{purpose}"))
+        tasks[name] = Task(name, entry["config"], str(entry.get("description", "")), ranges)
+    spans.sort()
+    for (a0, a1, an), (b0, b1, bn) in zip(spans, spans[1:]):
+        if b0 <= a1:
+            raise ValueError(f"task file {path}: seed ranges {an} [{a0}, {a1}] and {bn} [{b0}, {b1}] overlap")
+    return tasks
+
+
+def list_tasks() -> list[str]:
+    return list(_load())
+
+
+def get_task(name: str) -> Task:
+    """The task `name` (``default`` is an alias of ``startup``)."""
+    if not isinstance(name, str):
+        raise ValueError(f"task = {name!r} is invalid: one of {list_tasks()}")
+    name = TASK_ALIASES.get(name, name)
+    tasks = _load()
+    if name not in tasks:
+        raise ValueError(f"task {name!r} unknown; available: {list(tasks)}")
+    return tasks[name]

@@ -1,0 +1,210 @@
+"""Offline PID tuning for the baselines: grid search over log gains, then Nelder-Mead.
+
+The objective is the benchmark's mean episode cost (severity / 4.5 mm/s + tracking RMS / 10 um)
+over a fixed set of plants (the task's tuning seeds, disjoint from its held-out seeds), in the
+gain-schedule environment of the task with the gains held fixed. Many gain sets are evaluated in
+one batch: environment j runs gain set j // M on plant j % M.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from scipy import optimize
+
+from millvib_env.control.policies import Controller
+from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import load_env_config
+from millvib_env.tasks import get_task
+from millvib_env.training.evaluate import run_episodes
+
+__all__ = ["GRID", "TuneResult", "mean_costs", "tune", "ActionTable"]
+
+#: the coarse grid (log10 of KP, KI, KD) the search starts from
+GRID = (np.arange(4.0, 7.01, 0.25), np.array([-3.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]),
+        np.array([0.0, 1.0, 1.5, 2.0, np.log10(300.0)]))
+
+
+class ActionTable(Controller):
+    """A fixed action per environment (a batch of fixed-gain PIDs)."""
+
+    name = "gain-table"
+
+    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None):
+        self.actions = np.asarray(actions, dtype=np.float32)
+        self.env_kwargs = dict(env_kwargs or {})
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return self.actions, state
+
+
+def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "startup",
+               params: dict | None = None, chunk: int = 4096) -> np.ndarray:
+    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL]) over the plants `seeds`.
+
+    `params` pins plant parameters (e.g. the nominal plant); otherwise each seed draws its plant.
+    Diverged episodes count with their (large) cost; a non-finite cost counts as 1e6.
+    """
+    sets = np.atleast_2d(np.asarray(log_gain_sets, float))
+    env_kwargs = {"config": get_task(task).config}
+    if sets.shape[1] == 4:
+        env_kwargs["actions"] = {"pressure_feedback": True}
+    if params:  # pin the plant: the randomised parameters are replaced by fixed ones
+        env_kwargs["randomize"] = {k: {"dist": "fixed", "low": v} for k, v in params.items()}
+    gain_map = GainMap.from_config(load_env_config(**env_kwargs))
+    m = len(seeds)
+    costs = np.empty((sets.shape[0], m))
+    actions = gain_map.action(10.0 ** sets)
+    per_chunk = max(1, chunk // m)
+    for start in range(0, sets.shape[0], per_chunk):
+        block = actions[start:start + per_chunk]
+        table = ActionTable(np.repeat(block, m, axis=0), env_kwargs)
+        recs = run_episodes(table, list(seeds) * block.shape[0])
+        c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
+        costs[start:start + block.shape[0]] = c
+    return costs.mean(axis=1)
+
+
+@dataclass
+class TuneResult:
+    log10_gains: np.ndarray
+    cost: float
+    grid_best: np.ndarray
+    grid_cost: float
+    n_evaluations: int
+
+    @property
+    def gains(self) -> list[float]:
+        return [float(g) for g in 10.0 ** self.log10_gains]
+
+
+def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = None, grid=GRID,
+         refine_iters: int = 60) -> TuneResult:
+    """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
+    gain_map = GainMap.from_config(load_env_config(get_task(task).config))
+    lo, hi = gain_map.log_lo, gain_map.log_hi
+    mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
+    mesh = np.clip(mesh, lo, hi)
+    grid_costs = mean_costs(mesh, seeds, task=task, params=params)
+    best = mesh[int(np.argmin(grid_costs))]
+    n_eval = len(mesh)
+
+    def objective(u: np.ndarray) -> float:
+        nonlocal n_eval
+        n_eval += 1
+        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params)[0])
+
+    res = optimize.minimize(objective, best, method="Nelder-Mead",
+                            options={"maxiter": refine_iters, "xatol": 0.02, "fatol": 1e-3,
+                                     "initial_simplex": best + np.vstack([np.zeros(3), 0.15 * np.eye(3)])})
+    final = np.clip(res.x, lo, hi)
+    final_cost = float(res.fun)
+    if final_cost > grid_costs.min():
+        final, final_cost = best, float(grid_costs.min())
+    return TuneResult(final, final_cost, best, float(grid_costs.min()), n_eval)
+
+
+def plants_of(seeds: Sequence[int], task: str) -> list:
+    """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
+    from millvib_env.envs.vec_env import MillVibVecEnv
+
+    venv = MillVibVecEnv("MillVib-GainSchedule-v0", len(seeds), config=get_task(task).config)
+    venv._seeds = [int(s) for s in seeds]
+    venv.reset()
+    return list(venv.core.params)
+
+
+def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: int = 4096) -> np.ndarray:
+    """Mean episode cost of the LQR reference with each of `weight_sets` (LQRWeights) over `seeds`.
+
+    Each plant's gains are designed for its true c1 and Ct, as `lqr-oracle` does; a design that
+    fails (no stabilising solution) costs 1e6.
+    """
+    from millvib_env.control.lqr import lqr_gains
+    from millvib_env.control.policies import LQRPolicy
+
+    env_kwargs = {"config": get_task(task).config, **LQRPolicy.ENV_KWARGS}
+    gain_map = GainMap.from_config(load_env_config(**env_kwargs))
+    plants = plants_of(seeds, task)
+    m = len(seeds)
+    actions, ok = [], []
+    for w in weight_sets:
+        for p in plants:
+            try:
+                g = lqr_gains(p, w)
+                ok.append(bool(np.all(np.isfinite(g))))
+            except (np.linalg.LinAlgError, ValueError):
+                g, _ = np.zeros(4), ok.append(False)
+            actions.append(gain_map.action(np.nan_to_num(g)))
+    actions = np.array(actions)
+    ok = np.array(ok).reshape(len(weight_sets), m)
+    costs = np.empty((len(weight_sets), m))
+    per_chunk = max(1, chunk // m)
+    for start in range(0, len(weight_sets), per_chunk):
+        block = actions[start * m:(start + per_chunk) * m]
+        k = len(block) // m
+        recs = run_episodes(ActionTable(block, env_kwargs), list(seeds) * k)
+        costs[start:start + k] = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(k, m)
+    costs[~ok] = 1e6
+    return costs.mean(axis=1)
+
+
+LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1e-4, 1e-2, 1.0, 100.0),
+            "r": (0.1, 1.0, 10.0, 100.0), "friction": ("stick", "sliding")}
+
+
+def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict:
+    """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
+    from millvib_env.control.lqr import LQRWeights
+
+    keys = ("q_v", "q_p", "q_i", "r")
+    grid = [dict(zip(keys + ("friction",), combo)) for combo in np.stack(np.meshgrid(
+        *[np.arange(len(LQR_GRID[k])) for k in keys + ("friction",)], indexing="ij"), -1).reshape(-1, 5)]
+    sets = [LQRWeights(**{k: LQR_GRID[k][int(c[k])] for k in keys + ("friction",)}) for c in grid]
+    costs = lqr_costs(sets, seeds, task=task)
+    best = sets[int(np.argmin(costs))]
+    n_eval = len(sets)
+
+    def objective(u: np.ndarray) -> float:
+        nonlocal n_eval
+        n_eval += 1
+        return float(lqr_costs([LQRWeights(**dict(zip(keys, 10.0 ** u)), friction=best.friction)], seeds,
+                               task=task)[0])
+
+    x0 = np.log10([getattr(best, k) for k in keys])
+    res = optimize.minimize(objective, x0, method="Nelder-Mead",
+                            options={"maxiter": refine_iters, "xatol": 0.05, "fatol": 1e-3,
+                                     "initial_simplex": x0 + np.vstack([np.zeros(4), 0.5 * np.eye(4)])})
+    if res.fun < costs.min():
+        weights = {**dict(zip(keys, [float(v) for v in 10.0 ** res.x])), "friction": best.friction}
+        cost = float(res.fun)
+    else:
+        weights = {k: getattr(best, k) for k in keys + ("friction",)}
+        cost = float(costs.min())
+    weights = {"q_x": 1.0, **{k: (round(v, 6 - int(math.floor(math.log10(abs(v))))) if isinstance(v, float) else v)
+                              for k, v in weights.items()}}
+    return {"weights": weights, "tuning_cost": round(cost, 4), "grid_cost": round(float(costs.min()), 4),
+            "n_evaluations": n_eval}
+
+
+ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
+
+
+def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS) -> dict:
+    """The estimator's forgetting time constant with the lowest mean cost on `seeds`."""
+    from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
+    from millvib_env.control.policies import load_controller
+
+    base = load_controller("pid-adaptive", task)
+    costs = {}
+    for tau in taus:
+        ctrl = AdaptivePolicy(base.table, base.gain_map, base.fallback, EstimatorSettings(tau_s=tau), base.nominal)
+        recs = run_episodes(ctrl, list(seeds), task=task)
+        costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
+    tau = min(costs, key=costs.get)
+    return {"estimator": {"tau_s": tau, "highpass_hz": EstimatorSettings().highpass_hz,
+                          "min_info": EstimatorSettings().min_info},
+            "tuning_costs": {str(k): round(v, 4) for k, v in costs.items()}}
