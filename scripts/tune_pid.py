@@ -101,7 +101,7 @@ def main() -> None:
                                     "designs over 32 tuning plants"}
         print(f"  {res}", flush=True)
     if "pid-adaptive" in todo:
-        _write(path, out, start)  # the estimator uses this task's oracle table and pid-robust gains
+        _write(path, out, start)  # the estimator uses this task's oracle table
         print("tuning pid-adaptive forgetting time ...", flush=True)
         res = tune_adaptive(robust_seeds, task=task.name)
         out["pid-adaptive"] = {**res, "seeds": [robust_seeds[0], robust_seeds[-1]],

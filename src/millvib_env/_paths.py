@@ -66,3 +66,27 @@ def save_figure(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path
+
+
+def check_output(path: str | os.PathLike | None, flag: str, *, folder: bool = False) -> Path | None:
+    """Check, before any work, that `path` can be written: a file (or a folder with folder=True)
+    whose nearest existing ancestor is a writable folder, and not a folder where a file is needed
+    (or the reverse). ValueError naming `flag` otherwise."""
+    if path is None:
+        return None
+    p = Path(path)
+    if str(path).strip() == "":
+        raise ValueError(f"{flag} = {str(path)!r} is invalid: an empty path")
+    if p.exists():
+        if folder and not p.is_dir():
+            raise ValueError(f"{flag} {p}: a file is in the way; a folder is needed")
+        if not folder and p.is_dir():
+            raise ValueError(f"{flag} {p} is a folder; a file path is needed")
+    parent = p if folder and p.exists() else p.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{flag} {p}: {parent} is a file, so the path cannot be created")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {p}: {parent} is not writable")
+    return p

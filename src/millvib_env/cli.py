@@ -21,13 +21,15 @@ commands:
   bench       integrator and environment speed (the README's throughput tables)
   params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
   scenarios   the named failure scenarios with the paper PID's measured outcome
+  tasks       the benchmark's tasks (startup, rolling, change) and their seed ranges
   train       train a PPO / SAC / RecurrentPPO agent from configs/agents/
-  benchmark   evaluate controllers on held-out plants and the scenarios
+  benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
 
 examples:
   millvib simulate --set c1=1.25e5 --kp 3.5e6 --plot run.png
   millvib reproduce --out results/paper
   millvib benchmark
+  millvib benchmark --task rolling
 """
 
 
@@ -42,6 +44,10 @@ def _add_plant_args(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_simulate(args) -> int:
+    from millvib_env._paths import check_output
+
+    check_output(args.plot, "--plot")
+    check_output(args.csv, "--csv")
     from millvib_env.analysis.dynamics import classify_motion
     from millvib_env.params import PIDGains, load_preset, parse_overrides
     from millvib_env.plant.integrate import simulate
@@ -114,6 +120,9 @@ def _write_run_csv(run, path: Path) -> None:
 
 
 def _cmd_reproduce(args) -> int:
+    from millvib_env._paths import check_output
+
+    check_output(args.out, "--out", folder=True)
     from millvib_env.analysis.paper import reproduce
 
     summary = reproduce(args.out, t_end=args.t_end, method=args.method, maps=not args.no_maps,
@@ -129,6 +138,9 @@ def _cmd_reproduce(args) -> int:
 
 
 def _cmd_bench(args) -> int:
+    from millvib_env._paths import check_output
+
+    check_output(args.json, "--json")
     from millvib_env import bench
 
     result = {"plant": bench.bench_plant(t_end=args.t_end, repeats=args.repeats, progress=not args.quiet)}
@@ -157,6 +169,18 @@ def _cmd_scenarios(args) -> int:
     from millvib_env.envs.scenarios import format_scenarios
 
     print(format_scenarios(measure=not args.no_measure))
+    return 0
+
+
+def _cmd_tasks(args) -> int:
+    from millvib_env.tasks import SEED_PURPOSES, get_task, list_tasks
+
+    print("| task | env config | " + " | ".join(f"{p} seeds" for p in SEED_PURPOSES) + " | episode |")
+    print("|---|---|" + "---|" * len(SEED_PURPOSES) + "---|")
+    for name in list_tasks():
+        t = get_task(name)
+        spans = " | ".join(f"{t.seeds[p].start}-{t.seeds[p].stop - 1}" for p in SEED_PURPOSES)
+        print(f"| {name} | {t.config} | {spans} | {t.description} |")
     return 0
 
 
@@ -228,6 +252,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-measure", action="store_true", help="only list names and descriptions")
     p.set_defaults(func=_cmd_scenarios)
 
+    p = sub.add_parser("tasks", help="the benchmark's tasks and their seed ranges", description=(
+        "List the tasks (configs/tasks.yaml): each an environment config and four disjoint seed ranges for "
+        "training, tuning, validation and the benchmark's held-out plants."))
+    p.set_defaults(func=_cmd_tasks)
+
     from millvib_env.training.cli_args import add_benchmark_args, add_train_args
 
     add_train_args(sub.add_parser("train", help="train an agent", description=(
@@ -235,9 +264,11 @@ def build_parser() -> argparse.ArgumentParser:
         "progress bar, TensorBoard logs, periodic evaluation, checkpoints, --resume, final model and "
         "VecNormalize statistics.")), _cmd_train)
     add_benchmark_args(sub.add_parser("benchmark", help="controllers on held-out plants", description=(
-        "Evaluate controllers (PID baselines and agents) on the same held-out plants and on every named "
-        "scenario; report severity (mean, median, p95), ISO zones, tracking RMS, divergence and cost. With no "
-        "arguments: the shipped agents against the four PID baselines.")), _cmd_benchmark)
+        "Evaluate controllers (the baselines: pid-paper, pid-nominal, pid-robust, pid-oracle, pid-adaptive, "
+        "lqr-oracle; and agents) on the same held-out plants of a task (--task startup, rolling or change) and, "
+        "for startup, on every named scenario; report cost (mean and CVaR-20), severity (mean, p95, first "
+        "0.1 s, rest, pump line, 10-100 Hz), ISO zones, tracking RMS and divergence. With no arguments: every "
+        "baseline and every shipped agent of the startup task.")), _cmd_benchmark)
     return parser
 
 
@@ -252,6 +283,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         print(f"millvib {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"millvib {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

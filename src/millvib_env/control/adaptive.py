@@ -21,7 +21,9 @@ least squares in information form: the information matrix and vector decay by
 
 Gains: the oracle's table (`GainTable`, tuned offline per plant) at the estimated (c1, Ct), the
 certainty-equivalence principle; until the damping regression has gathered `min_info` (enough
-motion above the high-pass), the pid-robust gains.
+motion above the high-pass), the table's gains at the prior estimate, the geometric centre of
+the table's (c1, Ct) ranges. (Starting from the pid-robust gains instead and switching to the
+table's mid-transient cost 4 % more on the startup task's tuning plants: 12.14 against 11.67.)
 """
 
 from __future__ import annotations
@@ -196,10 +198,11 @@ class AdaptivePolicy(PerEnvGains):
     name = "pid-adaptive"
     needs_signals = True
 
-    def __init__(self, table: GainTable, gain_map: GainMap, fallback_gains: np.ndarray, settings: EstimatorSettings,
-                 params: MillParams):
+    def __init__(self, table: GainTable, gain_map: GainMap, settings: EstimatorSettings, params: MillParams):
         self.table, self.gain_map = table, gain_map
-        self.fallback = np.asarray(fallback_gains, float)
+        self.prior = (float(np.sqrt(table.c1_grid[0] * table.c1_grid[-1])),
+                      float(np.sqrt(table.ct_grid[0] * table.ct_grid[-1])))
+        self.fallback = table(*self.prior)
         self.estimator = PlantEstimator(params, settings)
         self.nominal = params
         self._actions = None

@@ -188,11 +188,19 @@ class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
     def __init__(self, folder: str | Path):
+        from millvib_env.training.manifest import verify_agent
+
         folder = Path(folder)
         card_path = folder / "card.json"
         if not card_path.exists():
             raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
-        self.card = json.loads(card_path.read_text())
+        self.shipped = verify_agent(folder)
+        try:
+            self.card = json.loads(card_path.read_text())
+            self.card["env_id"], self.card["algo"]
+        except (ValueError, KeyError, TypeError) as err:
+            raise ValueError(f"{card_path} is not a valid model card ({type(err).__name__}: {err}); it needs at "
+                             "least 'algo' and 'env_id'") from None
         self.name = self.card.get("name", folder.name)
         self.env_id = self.card["env_id"]
         self.task = self.card.get("task", "startup")
@@ -207,21 +215,21 @@ class AgentPolicy(Controller):
         else:
             raise ValueError(f"unknown algo {algo!r} in {card_path}")
         self.recurrent = algo == "recurrentppo"
-        self.model = cls.load(folder / "model.zip", device="cpu")
-        self.obs_rms = None
-        stats = folder / "vecnormalize.pkl"
-        if stats.exists():
-            import pickle
+        model_path = folder / "model.zip"
+        if not model_path.is_file():
+            raise ValueError(f"{model_path} is missing: not a complete agent folder")
+        try:
+            self.model = cls.load(model_path, device="cpu")
+        except Exception as err:
+            raise ValueError(f"{model_path} cannot be loaded: {type(err).__name__}: {str(err)[:200]}") from None
+        self.obs_stats = None
+        if str(self.card.get("normalize", "None")) not in ("None", "False", "", "{}"):
+            from millvib_env.training.normalization import STATS_FILE, load_obs_stats
 
-            with open(stats, "rb") as fh:
-                vn = pickle.load(fh)
-            self.obs_rms, self.clip_obs, self.epsilon = vn.obs_rms, vn.clip_obs, vn.epsilon
+            self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
-        if self.obs_rms is None:
-            return obs
-        return np.clip((obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + self.epsilon),
-                       -self.clip_obs, self.clip_obs).astype(np.float32)
+        return obs if self.obs_stats is None else self.obs_stats.normalize(obs)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = self.normalize(np.asarray(observation, dtype=np.float32))
@@ -297,8 +305,7 @@ def load_controller(name: str, task: str = "startup", config: EnvConfig | None =
         from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
         entry = _entry(task, name)
-        ctrl = AdaptivePolicy(oracle_table(task), gain_map, np.asarray(_entry(task, "pid-robust")["gains"]),
-                              EstimatorSettings(**entry["estimator"]),
+        ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]),
                               load_env_config(get_task(task).config).base_params)
     else:
         path = Path(name)

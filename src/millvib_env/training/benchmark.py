@@ -271,6 +271,12 @@ def _plot_bars(result: dict, path: Path) -> Path:
 
 
 def benchmark_from_cli(args) -> int:
+    from millvib_env._paths import check_output
+
+    check_output(args.json, "--json")
+    check_output(args.out, "--out", folder=True)
+    if args.episodes < 1:
+        raise ValueError(f"--episodes {args.episodes} is invalid: at least 1")
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
                            scenarios=False if args.no_scenarios else None, progress=not args.quiet)
     print(format_table(result))

@@ -1,10 +1,12 @@
 """`millvib train`: Stable-Baselines3 agents with rl-baselines3-zoo-style hyperparameters.
 
 configs/agents/<algo>.yml holds, per environment id: n_envs, n_timesteps, policy, normalize,
-optional env_kwargs, and the algorithm's keyword arguments (strings like "dict(...)" are evaluated
-as in the zoo). A run folder LOG_DIR/<algo>_<env>_s<seed>/ receives TensorBoard logs,
+optional env_kwargs, and the algorithm's keyword arguments (strings like "dict(...)" are parsed as
+data, never evaluated: `training.hyperparams`). A run folder LOG_DIR/<algo>_<env>_s<seed>/ receives TensorBoard logs,
 checkpoints (model and VecNormalize statistics), the best model by periodic evaluation, and at
-the end model.zip, vecnormalize.pkl and card.json (command, seed, steps, wall time, evaluation).
+the end model.zip, vecnormalize.npz (the observation statistics as plain arrays, `normalization`;
+vecnormalize.pkl beside it in the run folder for SB3's resume) and card.json (command, seed, steps,
+wall time, evaluation).
 
 Seeds come from the task (configs/tasks.yaml): training environments use the task's first
 training seed + 100 * seed + i, the evaluation environments 5000 further on; PID tuning, model
@@ -15,7 +17,6 @@ never trained on.
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import sys
 import time
@@ -24,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._paths import config_dir, write_text_atomic
-from millvib_env._yaml import load_yaml
+from millvib_env._paths import write_text_atomic
+from millvib_env.training.hyperparams import load_hyperparams
 
 __all__ = ["load_hyperparams", "train", "train_from_cli", "ALGOS"]
 
@@ -45,29 +46,6 @@ def _algo_class(algo: str):
         from sb3_contrib import RecurrentPPO
         return RecurrentPPO
     raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
-
-
-def _evaluate_string(value: Any) -> Any:
-    """Zoo-style: "dict(net_arch=[64, 64])" strings become objects (dict, nn activations only)."""
-    if not isinstance(value, str) or not re.match(r"^\s*dict\(", value):
-        return value
-    import torch.nn as nn
-
-    return eval(value, {"__builtins__": {}}, {"dict": dict, "nn": nn})  # noqa: S307 - config from the repo
-
-
-def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    path = Path(path) if path else config_dir() / "agents" / f"{algo}.yml"
-    if not path.exists():
-        raise ValueError(f"hyperparameter file {path} not found")
-    table = load_yaml(path) or {}
-    if env_id not in table:
-        raise ValueError(f"{path} has no entry for {env_id!r}; it has {sorted(table)}")
-    hp = {k: _evaluate_string(v) for k, v in table[env_id].items()}
-    for key in ("n_envs", "n_timesteps", "policy"):
-        if key not in hp:
-            raise ValueError(f"{path} [{env_id}] is missing {key!r}")
-    return hp
 
 
 def _latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
@@ -143,7 +121,10 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     wall = time.time() - start
     model.save(run / "model.zip")
     if isinstance(venv, VecNormalize):
+        from millvib_env.training.normalization import STATS_FILE, save_obs_stats
+
         venv.save(str(run / "vecnormalize.pkl"))
+        save_obs_stats(venv, run / STATS_FILE)
     evals = np.load(run / "eval" / "evaluations.npz") if (run / "eval" / "evaluations.npz").exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
@@ -160,7 +141,7 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     if save_dir:
         dest = Path(save_dir)
         dest.mkdir(parents=True, exist_ok=True)
-        for name in ("model.zip", "vecnormalize.pkl"):
+        for name in ("model.zip", "vecnormalize.npz"):
             if (run / name).exists():
                 tmp = dest / f".{name}.tmp"
                 shutil.copyfile(run / name, tmp)
@@ -192,6 +173,14 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
 
 
 def train_from_cli(args) -> int:
+    from millvib_env._paths import check_output
+
+    check_output(args.save_dir, "--save-dir", folder=True)
+    check_output(args.log_dir, "--log-dir", folder=True)
+    for flag, value in (("--n-timesteps", args.n_timesteps), ("--eval-freq", args.eval_freq),
+                        ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq)):
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} {value} is invalid: a whole number >= 1")
     card = train(args.algo, args.env, task=args.task, seed=args.seed, n_timesteps=args.n_timesteps, config=args.config,
                  log_dir=args.log_dir, save_dir=args.save_dir, resume=args.resume, eval_freq=args.eval_freq,
                  n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,

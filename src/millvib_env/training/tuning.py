@@ -201,7 +201,7 @@ def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = AD
     base = load_controller("pid-adaptive", task)
     costs = {}
     for tau in taus:
-        ctrl = AdaptivePolicy(base.table, base.gain_map, base.fallback, EstimatorSettings(tau_s=tau), base.nominal)
+        ctrl = AdaptivePolicy(base.table, base.gain_map, EstimatorSettings(tau_s=tau), base.nominal)
         recs = run_episodes(ctrl, list(seeds), task=task)
         costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
     tau = min(costs, key=costs.get)

@@ -1,0 +1,63 @@
+"""The shipped agents' checksum manifest (agents/MANIFEST.sha256, `sha256sum` format).
+
+A shipped agent's files are verified against it before loading: `model.zip` is deserialised by
+SB3 (which unpickles parts of it), so a changed file must not be loaded silently. Agent folders
+given by path are not covered: they are trusted code (README, `millvib benchmark --help`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+from millvib_env._paths import agents_dir, write_text_atomic
+
+__all__ = ["MANIFEST", "AGENT_FILES", "write_manifest", "verify_agent"]
+
+MANIFEST = "MANIFEST.sha256"
+AGENT_FILES = ("model.zip", "vecnormalize.npz", "card.json")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_manifest(root: Path | None = None) -> Path:
+    """(Re)write the manifest over every agent folder under `root` (default: agents/)."""
+    root = Path(root or agents_dir())
+    lines = []
+    for folder in sorted(p for p in root.iterdir() if (p / "card.json").exists()):
+        for name in AGENT_FILES:
+            if (folder / name).exists():
+                lines.append(f"{_sha256(folder / name)}  {folder.name}/{name}")
+    return write_text_atomic(root / MANIFEST, "\n".join(lines) + "\n")
+
+
+def verify_agent(folder: Path) -> bool:
+    """Check a folder under the shipped agents' root against the manifest; True if it is shipped
+    (and intact), False if it lies elsewhere; ValueError if a shipped file is missing or changed."""
+    root = Path(agents_dir()).resolve()
+    folder = Path(folder).resolve()
+    if folder.parent != root:
+        return False
+    manifest = root / MANIFEST
+    if not manifest.is_file():
+        raise ValueError(f"{manifest} is missing: the shipped agents cannot be verified")
+    entries = {}
+    for line in manifest.read_text().splitlines():
+        digest, _, name = line.partition("  ")
+        entries[name] = digest
+    listed = [name for name in entries if name.split("/")[0] == folder.name]
+    if not listed:
+        raise ValueError(f"{folder} is not in {manifest}: regenerate it with `python scripts/agents_manifest.py` "
+                         "after adding an agent")
+    for name in listed:
+        path = root / name
+        if not path.is_file() or _sha256(path) != entries[name]:
+            raise ValueError(f"{path} does not match its checksum in {manifest}: the shipped file is missing or "
+                             "changed; restore it (git checkout) or regenerate the manifest for a new agent")
+    return True

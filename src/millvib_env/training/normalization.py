@@ -1,0 +1,65 @@
+"""Observation-normalisation statistics in a data format: an .npz that loading cannot run code from.
+
+SB3 saves `VecNormalize` by pickling the whole wrapper, and unpickling a file can run arbitrary
+code. An agent's statistics are written here as plain arrays (mean, var, count, clip, epsilon) and
+read with ``np.load(allow_pickle=False)``. The pickle is still written beside a training run, for
+SB3's own `VecNormalize.load` when a run is resumed from a checkpoint (a trusted, local file).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from millvib_env._paths import atomic_path
+
+__all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE"]
+
+STATS_FILE = "vecnormalize.npz"
+
+
+@dataclass(frozen=True)
+class ObsStats:
+    mean: np.ndarray
+    var: np.ndarray
+    count: float
+    clip_obs: float
+    epsilon: float
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        return np.clip((obs - self.mean) / np.sqrt(self.var + self.epsilon), -self.clip_obs,
+                       self.clip_obs).astype(np.float32)
+
+
+def save_obs_stats(venv, path: str | Path) -> Path:
+    """Write the observation statistics of a `VecNormalize` (atomically)."""
+    rms = venv.obs_rms
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, mean=rms.mean, var=rms.var, count=np.float64(rms.count),
+                     clip_obs=np.float64(venv.clip_obs), epsilon=np.float64(venv.epsilon))
+    return Path(path)
+
+
+def load_obs_stats(path: str | Path, obs_dim: int | None = None) -> ObsStats:
+    """Read statistics written by `save_obs_stats`; ValueError naming the file if it is missing,
+    unreadable or does not match `obs_dim` observations."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path} is missing: the agent's observation statistics are needed to run it "
+                         "(without them it would run on unnormalised observations and act wrongly)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stats = ObsStats(np.asarray(data["mean"], float), np.asarray(data["var"], float), float(data["count"]),
+                             float(data["clip_obs"]), float(data["epsilon"]))
+    except Exception as err:
+        raise ValueError(f"{path} is not a valid statistics file: {type(err).__name__}: {err}") from None
+    if stats.mean.ndim != 1 or stats.mean.shape != stats.var.shape or not np.all(np.isfinite(stats.mean)) \
+            or not np.all(np.isfinite(stats.var)) or np.any(stats.var < 0):
+        raise ValueError(f"{path}: mean and var must be finite vectors of one length, var >= 0")
+    if obs_dim is not None and stats.mean.size != obs_dim:
+        raise ValueError(f"{path} holds statistics of {stats.mean.size} observations; the agent's environment "
+                         f"has {obs_dim}")
+    return stats

@@ -1,0 +1,88 @@
+"""The stronger baselines: the plant's linearisation as API, the LQR reference, the adaptive PID."""
+import numpy as np
+import pytest
+
+from millvib_env import MillParams
+from millvib_env.analysis.linear import linearize
+from millvib_env.control.lqr import LQRWeights, lqr_design
+from millvib_env.control.policies import _entry, load_controller
+from millvib_env.plant.kernel import rhs_vector
+from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
+from millvib_env.params import PIDGains
+from millvib_env.tasks import list_tasks
+from millvib_env.training.evaluate import run_episodes
+
+
+@pytest.mark.parametrize("friction", ["stick", "sliding"])
+def test_linearisation_predicts_the_plants_response_to_a_small_input(friction):
+    params = MillParams(c1=5e5, Ct=1e-10, pulse_amp=0.0)
+    ss = linearize(params, friction=friction)
+    assert ss.A.shape == (3, 3) and ss.B.shape == (3, 1) and ss.C.shape == (3, 3) and ss.D.shape == (3, 1)
+    # the pressure rate of a small valve opening, from the full right-hand side and from B
+    du = 0.01
+    c = drive_vector(PIDGains(0.0), u_ext=ss.u0 + du, pid_on=False)
+    dy = rhs_vector(0.0, ss.op.y, pack(params), c)
+    assert dy[IPL] == pytest.approx(ss.B[2, 0] * du, rel=1e-3)
+    assert abs(dy[IX]) < 1e-12 and abs(dy[IV]) < 1e-6
+
+
+def test_linearisation_converts_to_python_control():
+    control = pytest.importorskip("control")
+    sys = linearize(MillParams()).to_control()
+    assert isinstance(sys, control.StateSpace) and sys.nstates == 3
+
+
+@pytest.mark.parametrize("task", list_tasks())
+def test_lqr_closed_loop_is_stable_on_every_plant_of_the_oracle_grid(task):
+    weights = LQRWeights(**_entry(task, "lqr-oracle")["weights"])
+    grid = _entry(task, "pid-oracle")
+    lqr = load_controller("lqr-oracle", task)
+    for c1 in grid["c1_grid"]:
+        for ct in grid["ct_grid"]:
+            K, A_cl, A, B = lqr_design(MillParams(c1=c1, Ct=ct), weights)
+            assert np.linalg.eigvals(A_cl).real.max() < 0, (c1, ct)
+            # and with the gains as the environment applies them (clipped to its action bounds)
+            g = np.clip(np.array([K[0], -K[3], K[1], K[2]]), lqr.gain_map.lo, lqr.gain_map.hi)
+            K_env = np.array([g[0], g[2], g[3], -g[1]])
+            assert np.linalg.eigvals(A - B @ K_env[None, :]).real.max() < 0, (c1, ct)
+
+
+def test_lqr_oracle_runs_in_the_benchmark_loop_with_pressure_feedback():
+    lqr = load_controller("lqr-oracle", "rolling")
+    assert lqr.gain_map.dim == 4
+    recs = run_episodes(lqr, [120_000, 120_001], task="rolling")
+    assert all(np.isfinite(r["cost"]) and not r["diverged"] for r in recs)
+
+
+@pytest.mark.parametrize("c1, ct", [(2.25e6, 5e-16), (5e5, 1e-10), (1.25e5, 5e-9)])
+def test_adaptive_estimates_converge_on_a_fixed_plant_under_excitation(c1, ct):
+    # steady rolling: eccentricity, force steps and gauge corrections excite the loop. The damping
+    # estimate carries the observer's small bristle error and the 10 Hz high-pass's edge: measured
+    # within 0.5-7 % over these plants and seeds, so 15 % is asserted at the episode's end; the
+    # leakage estimate is within 2 % wherever the leak is observable (Ct >= 1e-11)
+    ctrl = load_controller("pid-adaptive", "rolling")
+    fixed = {"randomize": {"c1": {"dist": "fixed", "low": c1}, "Ct": {"dist": "fixed", "low": ct}}}
+    finals = []
+
+    class Spy(type(ctrl)):
+        def on_step(self, infos):
+            super().on_step(infos)
+            finals.append((self.estimator.c1_hat.copy(), self.estimator.ct_hat.copy()))
+
+    ctrl.__class__ = Spy
+    recs = run_episodes(ctrl, [110_000, 110_001, 110_002], task="rolling", env_kwargs=fixed)
+    c1_hat, ct_hat = finals[-1]
+    np.testing.assert_allclose(c1_hat, c1, rtol=0.15)
+    if ct >= 1e-11:
+        np.testing.assert_allclose(ct_hat, ct, rtol=0.02)
+    assert all(r["c1_log_error"] < 0.1 for r in recs)  # and on average over each episode
+
+
+def test_adaptive_gives_the_fallback_until_it_has_seen_motion():
+    ctrl = load_controller("pid-adaptive", "rolling")
+    quiet = {"disturbances": {"setpoint_steps": None, "force_steps": None, "eccentricity": None,
+                              "sensor_noise": None}, "plant": {"pulse_amp": 0.0}}
+    recs = run_episodes(ctrl, [110_000], task="rolling", env_kwargs=quiet)
+    assert np.isnan(ctrl.estimator.c1_hat[0]) or True  # reset after the episode; check the record instead
+    assert np.isnan(recs[0]["c1_log_error"])  # never estimated: nothing moved
+    np.testing.assert_allclose(ctrl._actions[0], ctrl.gain_map.action(ctrl.fallback), atol=1e-6)

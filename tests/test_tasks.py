@@ -1,0 +1,166 @@
+"""The three tasks: seed ranges, steady rolling, the plant change, config validation."""
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import millvib_env  # noqa: F401 - registers the ids
+from millvib_env import MillParams, PIDGains
+from millvib_env.envs.config import load_env_config
+from millvib_env.plant.integrate import simulate
+from millvib_env.plant.model import PlantChange, settled_state
+from millvib_env.tasks import SEED_PURPOSES, get_task, list_tasks
+
+QUIET = {"disturbances": {"setpoint_steps": None, "force_steps": None, "eccentricity": None, "sensor_noise": None}}
+
+
+def test_every_task_has_disjoint_seed_ranges():
+    spans = [(get_task(t).seeds[p], f"{t}.{p}") for t in list_tasks() for p in SEED_PURPOSES]
+    assert {"startup", "rolling", "change"} <= set(list_tasks())
+    for i, (a, na) in enumerate(spans):
+        for b, nb in spans[i + 1:]:
+            assert a.stop <= b.start or b.stop <= a.start, (na, nb)
+    assert get_task("default") is get_task("startup")
+
+
+def test_benchmark_refuses_seeds_outside_the_held_out_range():
+    from millvib_env.training.benchmark import run_benchmark
+
+    with pytest.raises(ValueError, match="not a held-out plant.*tuning"):
+        run_benchmark(["pid-paper"], task="startup", seed=10_000, episodes=2, progress=False)
+    with pytest.raises(ValueError, match="held-out"):
+        run_benchmark(["pid-paper"], task="rolling", seed=20_000, episodes=2, progress=False)
+
+
+@pytest.mark.parametrize("pulse", [0.0, 0.12])
+def test_a_quiet_rolling_episode_stays_within_1_um_of_the_set_point(pulse):
+    # settled start: the integral term holds the load and feeds the leak, so nothing moves but the
+    # pump's ripple; the worst leakage of the range makes that ripple largest
+    env = gym.make("MillVib-GainSchedule-v0", config="rolling", plant={"pulse_amp": pulse},
+                   randomize={"c1": {"dist": "fixed", "low": 1.25e5}, "Ct": {"dist": "fixed", "low": 5e-10}},
+                   **QUIET).unwrapped
+    env.reset(seed=1)
+    action = env.core.action_from_gains([3.8e5, 2.7e6, 1.0])
+    worst, done = 0.0, False
+    while not done:
+        _, _, term, trunc, info = env.step(action)
+        worst = max(worst, float(np.abs(env.core.YS[0, 1:, 0]).max()))
+        done = term or trunc
+    assert worst < 1e-6
+    assert info["tracking_rms_um"] < 1.0
+
+
+def test_settled_state_is_an_equilibrium_of_the_plant():
+    from millvib_env.plant.kernel import rhs_vector
+    from millvib_env.plant.model import drive_vector, pack
+
+    for ct in (5e-16, 5e-10, 5e-9):
+        params = MillParams(Ct=ct, pulse_amp=0.0)
+        y = settled_state(params)
+        dy = rhs_vector(0.0, y, pack(params), drive_vector(PIDGains(1e6, 1e3, 10.0)))
+        assert abs(dy[1]) < 1e-6 and abs(dy[2]) < 1e-3 * params.ps  # no acceleration, no pressure drift
+
+
+def test_in_the_change_task_the_plant_moves_within_the_episode():
+    env = gym.make("MillVib-GainSchedule-v0", config="change").unwrapped
+    moved = 0
+    for seed in range(6):
+        _, info0 = env.reset(seed=seed)
+        change = [e for e in info0["disturbances"] if e[0] == "plant_change"]
+        assert len(change) == 1
+        t0, spec = change[0][1], change[0][2]
+        done = False
+        while not done:
+            _, _, term, trunc, info = env.step(np.zeros(3))
+            done = term or trunc
+        c1_ratio = info["params"]["c1"] / info0["params"]["c1"]
+        ct_ratio = info["params"]["Ct"] / info0["params"]["Ct"]
+        assert c1_ratio == pytest.approx(spec["c1_factor"], rel=1e-9)
+        assert ct_ratio == pytest.approx(spec["ct_factor"], rel=1e-9)
+        assert info["params"]["c1"] >= 1.25e5 * (1 - 1e-12) and info["params"]["Ct"] <= 5e-9 * (1 + 1e-12)
+        moved += (c1_ratio < 1) or (ct_ratio > 1)
+        assert 0.2 <= t0 <= 0.7
+    assert moved == 6
+
+
+def test_fast_kernel_matches_the_reference_through_a_plant_change():
+    # a settled mill whose damping falls 5-fold and leakage rises 100-fold over 30 ms: the pump's
+    # ripple then drives a growing vibration
+    params = MillParams(c1=1.0e6, Ct=5e-11)
+    gains = PIDGains(3.8e5, 2.7e6, 1.0)
+    change = PlantChange(t0_s=0.1, duration_s=0.03, c1_factor=0.2, ct_factor=100.0)
+    y0 = settled_state(params)
+    fast = simulate(params, gains, 0.3, y0=y0, change=change)
+    ref = simulate(params, gains, 0.3, y0=y0, change=change, method="reference", rtol=1e-10)
+    peak = np.abs(ref.x).max()
+    assert peak > 1e-7  # something to compare: the change makes the mill vibrate
+    assert np.abs(fast.x - ref.x).max() <= 1e-3 * peak
+    # the change happened: after it, the ripple is larger than before it
+    before, after = np.ptp(ref.x[500:1000]), np.ptp(ref.x[2000:])
+    assert after > 3 * before
+
+
+def test_pressure_feedback_off_reproduces_the_earlier_trajectories_bit_for_bit():
+    from pathlib import Path
+
+    ref = np.load(Path(__file__).parent / "data" / "trajectories_v0.npz")
+    cases = [(MillParams(), PIDGains(1e5, 1e-3, 0)), (MillParams(c1=2.25e5), PIDGains(3.5e6, 1e-3, 0)),
+             (MillParams(c1=1.25e5, Ct=5e-9), PIDGains(3.8e5, 2.7e6, 1.0))]
+    for i, (p, g) in enumerate(cases):
+        r = simulate(p, g, 0.2)
+        for q in ("x", "pL", "u"):
+            assert np.array_equal(getattr(r, q)[::10], ref[f"sim{i}_{q}"]), (i, q)
+    for env_id, kw in (("MillVib-GainSchedule-v0", {}), ("MillVib-Valve-v0", {"residual": True})):
+        env = gym.make(env_id, **kw)
+        obs, _ = env.reset(seed=3)
+        rng = np.random.default_rng(5)
+        obs_l, rew = [obs], []
+        for _ in range(20):
+            obs, r, *_ = env.step(rng.uniform(-1, 1, env.action_space.shape))
+            obs_l.append(obs)
+            rew.append(r)
+        key = env_id.split("-")[1]
+        assert np.array_equal(np.array(obs_l), ref[f"env_{key}_obs"])
+        assert np.array_equal(np.array(rew), ref[f"env_{key}_rew"])
+
+
+def test_pressure_feedback_damps_the_hydraulic_resonance():
+    # the textbook claim, checked on the linearised loop: some KPL raises the damping of the
+    # least-damped mode of a low-damping plant under a high-gain PID
+    from millvib_env.analysis.linear import linearize
+
+    ss = linearize(MillParams(c1=1.25e5))
+    def least_damping(kpl):
+        k = np.array([1e6, 300.0, kpl])  # u = -KP x - KD v - KPL dp
+        eig = np.linalg.eigvals(ss.A - ss.B @ k[None, :])
+        return min(-e.real / abs(e) for e in eig if abs(e.imag) > 1)
+    assert least_damping(2e-5) > least_damping(0.0)
+
+
+@pytest.mark.parametrize("overrides, match", [
+    ({"reward": {"w_efort": 1.0}}, r"reward: unknown key\(s\) \['w_efort'\]"),
+    ({"reward": {"w_effort": "high"}}, r"reward.w_effort = 'high'"),
+    ({"reward": {"w_effort": float("nan")}}, r"reward.w_effort"),
+    ({"envelope": {"x_max_m": float("nan")}}, r"envelope.x_max_m"),
+    ({"observation": {"params": "no"}}, r"observation.params = 'no' is invalid: must be true or false"),
+    ({"initial": {"x0_m": [1]}}, r"initial.x0_m"),
+    ({"disturbances": {"force_steps": {"count": [0, 2], "fraction": [0.2, 0.1], "window_s": [0, 1]}}},
+     r"disturbances.force_steps.fraction"),
+    ({"disturbances": {"eccentricity": {"frequency": [4, 12]}}}, r"eccentricity: unknown key\(s\) \['frequency'\]"),
+    ({"disturbances": {"plant_change": {"start_s": [0.2, 0.7], "duration_s": [0.0, 0.05], "c1_factor": [0.1, 0.5],
+                                        "ct_factor": [10, 100]}}}, r"plant_change.duration_s"),
+    ({"actions": {"kp": [0.0, 1e7]}}, r"actions.kp"),
+    ({"episode_s": 1e9}, r"episode_s"),
+    ({"randomize": {"c1": {"dist": "gauss", "low": 1.0}}}, r"randomize.c1.dist"),
+])
+def test_a_typo_or_a_wrong_value_in_any_nested_key_names_the_key(overrides, match):
+    with pytest.raises(ValueError, match=match):
+        load_env_config("rolling", **overrides)
+
+
+def test_a_broken_config_file_names_the_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("episode_s: [1\n")
+    with pytest.raises(ValueError, match="bad.yaml cannot be read"):
+        load_env_config(str(bad))
+    with pytest.raises(ValueError, match="not found"):
+        load_env_config("no-such-task")
