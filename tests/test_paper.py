@@ -33,3 +33,17 @@ def test_the_studies_match_the_paper_setup():
     assert [c.value for c in PAPER_STUDIES[0].cases] == [2.25e6, 2.25e5, 1.25e5]
     assert [c.value for c in PAPER_STUDIES[1].cases] == [5e-16, 5e-10, 5e-9]
     assert [c.gains.kp for c in PAPER_STUDIES[2].cases] == [1e5, 3.5e6, 3.9e6]
+
+
+def test_ode45_default_tolerances_sustain_a_vibration_the_converged_solution_does_not_have():
+    # the paper's KP = 3.9e6 case: quasi-periodic under ode45's RelTol 1e-3 / AbsTol 1e-6, a decay
+    # once converged (README, "The paper's solver")
+    from millvib_env.analysis.solver_study import SOLVERS, run_solver_study, verdicts
+
+    kp_study = PAPER_STUDIES[2]
+    rows, _ = run_solver_study(1.0, solvers=(SOLVERS[0], SOLVERS[-1]), progress=False, keep_runs=False,
+                               cases=[(kp_study, kp_study.cases[2])])
+    default, converged = rows
+    assert default.motion != "decay" and converged.motion == "decay"
+    assert default.tail_ptp_um > 10 * converged.tail_ptp_um
+    assert verdicts(rows)[0]["verdict"].startswith("artefact")

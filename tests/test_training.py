@@ -101,3 +101,16 @@ def test_shipped_agents_load_and_run(name):
 def test_default_benchmark_covers_the_shipped_agents():
     agents = list_agents()
     assert len(agents) >= 2, "the PPO and SAC gain schedulers are shipped under agents/"
+
+
+def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
+    cfg = tmp_path / "ppo.yml"
+    cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
+    card = train("ppo", task="rolling", seed=1, config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128,
+                 n_eval_episodes=2, checkpoint_freq=128, progress=False, save_dir=str(tmp_path / "agent"))
+    assert card["task"] == "rolling" and card["env_kwargs"]["config"] == "rolling"
+    assert card["validation"]["seeds"].startswith("115000")
+    with pytest.raises(ValueError, match="trained on task 'rolling'"):
+        run_benchmark([str(tmp_path / "agent")], task="startup", episodes=1, progress=False)
+    result = run_benchmark([str(tmp_path / "agent"), "pid-robust"], task="rolling", episodes=2, progress=False)
+    assert result["task"] == "rolling" and result["seed"] == 120_000

@@ -276,21 +276,45 @@ def claims(results: list[CaseResult]) -> list[dict]:
 
 
 def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", maps: bool = True,
-              map_resolution: int = 14, progress: bool = True) -> dict:
-    """Run the studies, write figures (PNG) and numbers (CSV, JSON) into `out_dir`."""
+              map_resolution: int = 14, progress: bool = True, solver_study: bool = True,
+              solver_study_only: bool = False) -> dict:
+    """Run the studies, write figures (PNG) and numbers (CSV, JSON) into `out_dir`.
+
+    `solver_study`: also integrate the nine cases with ode45's default tolerances and a ladder of
+    tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
+    existing summary.json are kept).
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    results, runs = run_studies(t_end, method)
-    files = [_write_csv(out / "paper_cases.csv", [r.row() for r in results])]
-    for study in PAPER_STUDIES:
-        files.append(_plot_study(study, runs[study.key], out))
-        files.append(_plot_severity(study, [r for r in results if r.study == study.key], out))
-    if maps:
-        files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress))
-        files.extend(_stability_figure(out, map_resolution, map_resolution, progress))
-    summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
-               "cases": [r.row() for r in results]}
-    files.append(write_text_atomic(out / "summary.json", json.dumps(summary, indent=2)))
-    summary["table"] = format_table(results)
+    files: list[Path] = []
+    summary: dict = {}
+    if solver_study_only:
+        old = out / "summary.json"
+        summary = json.loads(old.read_text()) if old.is_file() else {}
+    else:
+        results, runs = run_studies(t_end, method)
+        files.append(_write_csv(out / "paper_cases.csv", [r.row() for r in results]))
+        for study in PAPER_STUDIES:
+            files.append(_plot_study(study, runs[study.key], out))
+            files.append(_plot_severity(study, [r for r in results if r.study == study.key], out))
+        if maps:
+            files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress))
+            files.extend(_stability_figure(out, map_resolution, map_resolution, progress))
+        summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
+                   "cases": [r.row() for r in results]}
+    if solver_study or solver_study_only:
+        from millvib_env.analysis.solver_study import (format_solver_table, plot_solver_study, run_solver_study,
+                                                       verdicts)
+
+        rows, solver_runs = run_solver_study(t_end, progress=progress)
+        files.append(_write_csv(out / "solver_study.csv", [r.row() for r in rows]))
+        files.extend(plot_solver_study(rows, solver_runs, out))
+        summary["solver_study"] = {"rows": [r.row() for r in rows], "verdicts": verdicts(rows)}
+    public = {k: v for k, v in summary.items() if k not in ("table", "files", "solver_table")}
+    files.append(write_text_atomic(out / "summary.json", json.dumps(public, indent=2)))
+    if not solver_study_only:
+        summary["table"] = format_table(results)
+    if "solver_study" in summary and (solver_study or solver_study_only):
+        summary["solver_table"] = format_solver_table(rows)
     summary["files"] = [str(f) for f in files]
     return summary

@@ -88,7 +88,9 @@ class GainScheduleEnv(MillVibEnv):
     ## Action Space
 
     ``Box(-1, 1, (3,), float32)``: (KP, KI, KD), each mapped on a log scale onto its bounds,
-    ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))``:
+    ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))`` (`envs.actions.GainMap`). With
+    ``actions={"pressure_feedback": True}`` a 4th entry sets KPL (V/Pa, [1e-9, 1e-4]): the control
+    law gains the pressure feedback ``- KPL (pL - pL_ref)``, the textbook active damping.
 
     | index | gain | unit | bounds (default config) |
     |---|---|---|---|
@@ -133,19 +135,26 @@ class GainScheduleEnv(MillVibEnv):
 
     ## Starting State
 
-    The paper's: the piston 1 mm from the set-point (``initial.x0_m``, optionally jittered), at rest
-    with zero acceleration (which fixes the chamber pressure), bristles at the static friction
-    fs. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0) and zero integral.
+    Task ``startup`` (the default): the paper's: the piston 1 mm from the set-point
+    (``initial.x0_m``, optionally jittered), at rest with zero acceleration (which fixes the chamber
+    pressure), bristles at the static friction fs, zero integral. Tasks ``rolling`` and ``change``
+    (``initial.settled: true``): settled at the set-point, the integral term already holding the
+    load and feeding the leak. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0).
 
     ## Episode End
 
     * Termination: the plant leaves its physical envelope (|x| > 5 mm, pL < -1 MPa or pL > 3 ps,
       the piston outside its stroke, or a numerical failure), with the terminal penalty.
-    * Truncation: after ``episode_s`` = 0.5 s (50 steps; ``max_episode_steps`` at registration).
+    * Truncation: after ``episode_s`` (0.5 s = 50 steps in ``startup``, 1 s = 100 steps in
+      ``rolling`` and ``change``). The environment truncates by itself; no ``TimeLimit`` is
+      registered, since the length depends on the config.
 
     At the end ``info`` carries the episode metrics: ``severity`` (mm/s, `vibration_severity` of the
-    episode's acceleration), ``tracking_rms_um``, ``iso_zone``, ``diverged``, ``episode_return``, and
-    always ``params`` (the true c1, Ct, ...).
+    episode's acceleration), ``severity_start`` and ``severity_rest`` (its first 0.1 s and the rest),
+    ``pump_line_mm_s`` and ``low_band_mm_s`` (the pump line's and the 10-100 Hz band's levels),
+    ``tracking_rms_um``, ``iso_zone``, ``diverged``, ``episode_return``; and always ``params`` (the
+    true c1, Ct, ... now: they move during a ``change`` episode). Stepping an episode that has ended,
+    or was never reset, raises ValueError.
 
     ## Arguments
 
@@ -158,12 +167,16 @@ class GainScheduleEnv(MillVibEnv):
     obs, info = env.reset(options={"scenario": "low-damping"})         # a named failure case
     ```
 
-    ``config`` names a YAML in configs/env/ (``default``, ``paper``: no extra disturbances,
-    ``realistic``) or is a dict; any top-level key of it can be given as a keyword.
+    ``config`` names a YAML in configs/env/: a task's episode (``startup``, alias ``default``;
+    ``rolling``: steady rolling under eccentricity, force steps, gauge corrections and sensor noise;
+    ``change``: rolling while damping falls and/or leakage rises mid-episode), or ``paper`` (no
+    extra disturbances), ``realistic``; or is a dict. Any top-level key of it can be given as a
+    keyword; every nested key is checked when the config loads.
 
     ## Version History
 
-    * v0: initial release.
+    * v0: initial release; tasks, pressure feedback and the plant change added within v0 (the
+      default episode is unchanged, bit for bit).
     """
 
     mode = "gain"

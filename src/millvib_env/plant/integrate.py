@@ -205,7 +205,8 @@ def _check_rtol(rtol: float) -> float:
 def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_end: float = 0.5, *,
              x0: float = 1.0e-3, xd: XdSpec = 0.0, method: str = "fast", dt_out: float = DEFAULT_DT_OUT,
              rtol: float | None = None, ivp_method: str = "LSODA", u_ext: float = 0.0,
-             pid_on: bool = True, y0: np.ndarray | None = None, change: PlantChange | None = None) -> SimResult:
+             pid_on: bool = True, y0: np.ndarray | None = None, change: PlantChange | None = None,
+             ivp_options: dict | None = None) -> SimResult:
     """Simulate one closed-loop plant from the paper's initial state.
 
     Parameters
@@ -220,6 +221,9 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
     y0 : full initial state (x, v, pL, z, uI), overriding x0.
     change : a change of c1 and Ct during the run (`PlantChange`), integrated by the same equations.
+    ivp_options : reference method only: ``atol`` (scalar or per state, replacing rtol * state
+        scale) and ``max_step`` (s) for `solve_ivp`, e.g. MATLAB ode45's defaults
+        ``{"atol": 1e-6}`` with ``rtol=1e-3``.
 
     With ``gains.kpl > 0`` the pressure feedback acts on pL - pL(0): the reference is the initial
     chamber pressure.
@@ -228,7 +232,8 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     gains = gains or PAPER_GAINS
     res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
                          ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
-                         y0=None if y0 is None else np.asarray(y0)[None, :], change=change)
+                         y0=None if y0 is None else np.asarray(y0)[None, :], change=change,
+                         ivp_options=ivp_options)
     out = res[0]
     out.info["wall_s"] = res.wall_s
     return out
@@ -239,7 +244,8 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
                    method: str = "fast", dt_out: float = DEFAULT_DT_OUT, rtol: float | None = None,
                    ivp_method: str = "LSODA", u_ext: float = 0.0, pid_on: bool = True,
                    y0: np.ndarray | None = None, progress: bool = False,
-                   change: PlantChange | Sequence[PlantChange | None] | None = None) -> BatchResult:
+                   change: PlantChange | Sequence[PlantChange | None] | None = None,
+                   ivp_options: dict | None = None) -> BatchResult:
     """Simulate N independent plants, each with its own parameters and gains.
 
     `params` and `gains` are single objects (shared) or sequences of equal length N. The fast
@@ -288,8 +294,12 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
                                      YS, status, t_fail, n_steps)
     elif method == "reference":
         rtol = _check_rtol(DEFAULT_RTOL_REFERENCE if rtol is None else rtol)
+        options = dict(ivp_options or {})
+        unknown = set(options) - {"atol", "max_step"}
+        if unknown:
+            raise ValueError(f"ivp_options: unknown key(s) {sorted(unknown)}; allowed: atol, max_step")
         YS, status, t_fail, n_steps = _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method,
-                                                            p_max, progress)
+                                                       p_max, progress, options)
     else:
         raise ValueError(f"method = {method!r} is invalid: use 'fast' or 'reference'")
     wall = time.perf_counter() - start
@@ -299,7 +309,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
                        drive=C)
 
 
-def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress):
+def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress, options):
     N = P.shape[0]
     YS = np.full((N, t.size, NY), np.nan)
     status = np.zeros(N, dtype=np.int64)
@@ -311,12 +321,13 @@ def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress)
         iterator = tqdm(iterator, desc="reference", unit="plant")
     for b in iterator:
         YS[b], status[b], t_fail[b], n_steps[b] = _reference_one(P[b], C[b], Y0[b], XD[b], t, rtol,
-                                                                 p_list[b], ivp_method, p_max)
+                                                                 p_list[b], ivp_method, p_max, options)
     return YS, status, t_fail, n_steps
 
 
-def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max):
-    atol = rtol * state_scale(params)
+def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
+    atol = options.get("atol", rtol * state_scale(params))
+    extra = {"max_step": float(options["max_step"])} if "max_step" in options else {}
     lo, hi = -p[P_L1], p[P_L] - p[P_L1]
 
     def inside_envelope(_t, y, c):  # > 0 while inside: stroke margin and pressure margin
@@ -340,7 +351,7 @@ def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max):
         c = c0.copy()
         c[C_XD] = xd[j0]
         sol = solve_ivp(rhs, (t[j0], t[j1]), y, method=ivp_method, t_eval=t[j0 + 1:j1 + 1], rtol=rtol,
-                        atol=atol, args=(c,), events=inside_envelope)
+                        atol=atol, args=(c,), events=inside_envelope, **extra)
         n_evals += sol.nfev
         m = sol.y.shape[1]
         out[j0 + 1:j0 + 1 + m] = sol.y.T

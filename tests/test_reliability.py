@@ -1,0 +1,136 @@
+"""User errors end in one clear line; nothing silently wrong (issue: reliability)."""
+import json
+import math
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import millvib_env
+from millvib_env.cli import main as cli_main
+
+WEIRD = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12), st.floats(allow_nan=True, allow_infinity=True),
+                  st.text(max_size=8), st.lists(st.floats(allow_nan=True), max_size=3),
+                  st.dictionaries(st.text(max_size=5), st.floats(), max_size=2))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(["x0", "params", "scenario", "bogus"]), value=WEIRD)
+def test_fuzzed_reset_options_raise_valueerror_or_give_finite_observations(key, value):
+    env = gym.make("MillVib-GainSchedule-v0").unwrapped
+    try:
+        obs, _ = env.reset(seed=0, options={key: value})
+    except ValueError as err:
+        assert "\n" not in str(err)
+        return
+    _, reward, *_ = env.step(np.zeros(3))
+    assert np.all(np.isfinite(obs)) and math.isfinite(reward)
+
+
+ENV_KWARG_KEYS = ["episode_s", "observe_params", "residual", "reward", "envelope", "initial", "actions",
+                  "disturbances", "randomize", "config", "plant", "sample_rate_hz"]
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(key=st.sampled_from(ENV_KWARG_KEYS), value=WEIRD)
+def test_fuzzed_env_kwargs_raise_valueerror_or_give_finite_rollouts(key, value):
+    try:
+        venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 2, seed=0, **{key: value})
+    except ValueError as err:
+        assert "\n" not in str(err)
+        return
+    obs = venv.reset()
+    for _ in range(3):
+        obs, rew, _, _ = venv.step(np.zeros((2, 3)))
+        assert np.all(np.isfinite(obs)) and np.all(np.isfinite(rew))
+
+
+def test_nan_and_string_booleans_are_refused():
+    with pytest.raises(ValueError, match="x0"):
+        gym.make("MillVib-GainSchedule-v0").reset(options={"x0": float("nan")})
+    with pytest.raises(ValueError, match="initial.x0_m"):
+        millvib_env.make_vec_env("MillVib-GainSchedule-v0", 1, initial={"x0_m": float("nan")})
+    with pytest.raises(ValueError, match="envelope.x_max_m"):
+        millvib_env.make_vec_env("MillVib-GainSchedule-v0", 1, envelope={"x_max_m": float("nan")})
+    with pytest.raises(ValueError, match="observe_params"):
+        gym.make("MillVib-GainSchedule-v0", observe_params="no")
+
+
+def test_stepping_an_ended_or_unstarted_episode_says_to_reset():
+    env = gym.make("MillVib-GainSchedule-v0").unwrapped
+    with pytest.raises(ValueError, match="reset"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)
+    done = False
+    while not done:
+        _, _, term, trunc, _ = env.step(np.zeros(3))
+        done = term or trunc
+    with pytest.raises(ValueError, match="reset"):
+        env.step(np.zeros(3))
+
+
+def test_a_batch_too_large_for_memory_is_refused_before_allocating():
+    with pytest.raises(ValueError, match="GiB"):
+        millvib_env.make_vec_env("MillVib-Valve-v0", 10**6)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["benchmark", "--episodes", "0"], "--episodes"),
+    (["benchmark", "--task", "nope"], "task 'nope'"),
+    (["benchmark", "--controllers", "no-such-agent"], "no-such-agent"),
+    (["benchmark", "--seed", "10"], "held-out"),
+    (["benchmark", "--json", "/proc/version/x.json"], "--json"),
+    (["train", "--algo", "ppo", "--n-timesteps", "0"], "--n-timesteps"),
+    (["train", "--algo", "ppo", "--task", "rolling", "--seed", "99"], "training seed 99"),
+    (["simulate", "--set", "c1=abc"], "c1"),
+    (["simulate", "--set", "c1=-1"], "c1"),
+])
+def test_bad_cli_input_exits_2_with_one_line(argv, match, capsys):
+    assert cli_main(argv + ["--quiet"] if argv[0] in ("benchmark", "train") else argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and match in err
+
+
+def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.policies import load_controller
+
+    folder = tmp_path / "agent"
+    shutil.copytree(agents_dir() / "ppo-gain", folder)
+    (folder / "vecnormalize.npz").unlink()
+    with pytest.raises(ValueError, match="vecnormalize.npz is missing"):
+        load_controller(str(folder))
+    (folder / "vecnormalize.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a valid statistics file"):
+        load_controller(str(folder))
+    (folder / "card.json").write_text(json.dumps({"algo": "ppo"}))
+    with pytest.raises(ValueError, match="card.json is not a valid model card"):
+        load_controller(str(folder))
+
+
+def test_a_changed_shipped_agent_fails_its_checksum(tmp_path, monkeypatch):
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.policies import load_controller
+
+    root = tmp_path / "agents"
+    shutil.copytree(agents_dir(), root)
+    monkeypatch.setenv("MILLVIB_AGENTS", str(root))
+    card = root / "ppo-gain" / "card.json"
+    card.write_text(card.read_text().replace('"seed": 0', '"seed": 1'))
+    with pytest.raises(ValueError, match="does not match its checksum"):
+        load_controller("ppo-gain")
+
+
+def test_import_and_help_work_whatever_the_config_files(tmp_path):
+    env = {"MILLVIB_CONFIGS": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    code = "import millvib_env, sys; from millvib_env.cli import main; sys.exit(main(['--help']))"
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "millvib" in run.stdout
