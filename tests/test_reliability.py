@@ -134,3 +134,39 @@ def test_import_and_help_work_whatever_the_config_files(tmp_path):
     code = "import millvib_env, sys; from millvib_env.cli import main; sys.exit(main(['--help']))"
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and "millvib" in run.stdout
+
+
+def test_written_files_respect_the_umask(tmp_path):
+    import os
+
+    from millvib_env._paths import write_text_atomic
+
+    old = os.umask(0o022)
+    try:
+        path = write_text_atomic(tmp_path / "a.txt", "x")
+    finally:
+        os.umask(old)
+    assert (path.stat().st_mode & 0o777) == 0o644
+
+
+def test_an_interrupted_folder_write_leaves_the_old_folder_whole(tmp_path):
+    from millvib_env._paths import atomic_folder
+
+    out = tmp_path / "results"
+    with atomic_folder(out) as tmp:
+        (tmp / "a.txt").write_text("run 1")
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_folder(out) as tmp:
+            (tmp / "a.txt").write_text("run 2")
+            (tmp / "b.txt").write_text("run 2")
+            raise KeyboardInterrupt
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt"] and (out / "a.txt").read_text() == "run 1"
+    assert [p.name for p in tmp_path.iterdir()] == ["results"]  # no temporary folder left behind
+
+
+def test_the_same_benchmark_gives_the_same_json_bytes(tmp_path):
+    paths = [tmp_path / "a.json", tmp_path / "b.json"]
+    for p in paths:
+        assert cli_main(["benchmark", "--controllers", "pid-paper", "pid-robust", "--episodes", "2", "--quiet",
+                         "--no-scenarios", "--json", str(p)]) == 0
+    assert paths[0].read_bytes() == paths[1].read_bytes()

@@ -32,9 +32,16 @@ def agents_dir() -> Path:
     return _data_dir("agents")
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success rename it onto `path`.
+    """Yield a temporary path beside `path`; on success rename it onto `path` with the mode a plain
+    write would give (0666 less the umask; mkstemp's own is 0600).
 
     An interrupted or failing writer leaves no half-written file at `path`.
     """
@@ -45,10 +52,41 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False) -> Iterator[Path]:
+    """Yield a temporary folder beside `path`; on success put it in place of `path` as a whole.
+
+    `keep_existing` starts the temporary folder as a copy of `path` (to update some of its files).
+    A run interrupted before the end leaves `path` as it was; two runs at once each replace the whole
+    folder, so it holds one run's files, never a mix.
+    """
+    import shutil
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        if keep_existing and path.is_dir():
+            shutil.copytree(path, tmp, dirs_exist_ok=True)
+        yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())
+        old = None
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            os.replace(path, old / "x")
+        os.replace(tmp, path)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:

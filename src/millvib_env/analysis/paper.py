@@ -284,8 +284,18 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
     tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
     existing summary.json are kept).
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    from millvib_env._paths import atomic_folder
+
+    final = Path(out_dir)
+    with atomic_folder(final, keep_existing=solver_study_only) as out:
+        summary = _reproduce_into(out, t_end, method, maps, map_resolution, progress, solver_study,
+                                  solver_study_only)
+    summary["files"] = [str(final / Path(f).name) for f in summary["files"]]
+    return summary
+
+
+def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
+                    solver_study_only) -> dict:
     files: list[Path] = []
     summary: dict = {}
     if solver_study_only:

@@ -116,7 +116,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
         for name, recs in result["records"].items():
             result["controllers"][name]["diverged_where_pid_robust_stable"] = int(
                 sum(r["diverged"] and r["seed"] in stable for r in recs))
-    result["wall_time_s"] = round(time.time() - start, 1)
+    result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
 
 
@@ -156,12 +156,22 @@ def format_table(result: dict) -> str:
 
 
 def public_json(result: dict) -> dict:
-    """The summary without the per-episode records (those go to the CSV)."""
-    return {k: v for k, v in result.items() if k != "records"}
+    """The summary without the per-episode records (those go to the CSV) and without timings, so the
+    same inputs give the same bytes."""
+    return {k: v for k, v in result.items() if k not in ("records", "wall_time_s")}
 
 
 def _write_outputs(result: dict, out: Path) -> list[Path]:
-    out.mkdir(parents=True, exist_ok=True)
+    """Write the result folder as a whole: into a temporary sibling, then put in place
+    (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files."""
+    from millvib_env._paths import atomic_folder
+
+    with atomic_folder(out) as tmp:
+        files = _write_files(result, tmp)
+    return [out / f.name for f in files]
+
+
+def _write_files(result: dict, out: Path) -> list[Path]:
     files = []
     buf = io.StringIO()
     fields = ["controller", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
