@@ -170,3 +170,23 @@ def test_the_same_benchmark_gives_the_same_json_bytes(tmp_path):
         assert cli_main(["benchmark", "--controllers", "pid-paper", "pid-robust", "--episodes", "2", "--quiet",
                          "--no-scenarios", "--json", str(p)]) == 0
     assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_resume_falls_back_to_the_last_intact_checkpoint_and_keeps_the_evaluations(tmp_path, capsys):
+    from millvib_env.training.train import train
+    from tests.test_training import EXTRA, TINY
+
+    cfg = tmp_path / "ppo.yml"
+    cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
+    kw = dict(config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2,
+              checkpoint_freq=128, progress=False)
+    train("ppo", seed=2, **kw)
+    ckpts = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v0_s2" / "checkpoints"
+    newest = max(ckpts.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]))
+    newest.write_bytes(newest.read_bytes()[:100])  # truncated by a killed run
+    evals = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v0_s2" / "eval" / "evaluations.npz"
+    before = len(np.load(evals)["timesteps"])
+    card = train("ppo", seed=2, n_timesteps=512, resume=True, **kw)
+    assert "cannot be loaded" in capsys.readouterr().err
+    assert card["n_timesteps"] >= 512
+    assert len(np.load(evals)["timesteps"]) > before  # the history continued

@@ -48,14 +48,52 @@ def _algo_class(algo: str):
     raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
 
 
-def _latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
-    ckpts = sorted(folder.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]))
-    if not ckpts:
-        return None
-    last = ckpts[-1]
-    steps = int(last.stem.split("_")[-2])
-    stats = folder / f"rl_model_vecnormalize_{steps}_steps.pkl"
-    return last, (stats if stats.exists() else None), steps
+def _checkpoints(folder: Path) -> list[tuple[Path, Path, int]]:
+    """(model, statistics, steps) of every checkpoint in `folder`, newest first."""
+    ckpts = sorted(folder.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]), reverse=True)
+    return [(c, folder / f"rl_model_vecnormalize_{int(c.stem.split('_')[-2])}_steps.pkl", int(c.stem.split("_")[-2]))
+            for c in ckpts]
+
+
+def _resume_from(cls, folder: Path, venv, normalized: bool, tb: str):
+    """The newest intact checkpoint (model and, for a normalised run, its statistics, as a pair),
+    loaded onto `venv`; an unreadable or unpaired one is skipped with a message."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    found = _checkpoints(folder)
+    if not found:
+        raise ValueError(f"--resume: no checkpoint in {folder}")
+    for model_path, stats_path, steps in found:
+        if normalized and not stats_path.is_file():
+            print(f"--resume: {model_path.name} has no statistics file {stats_path.name}; trying an earlier "
+                  "checkpoint", file=sys.stderr)
+            continue
+        try:
+            env = VecNormalize.load(str(stats_path), venv) if normalized else venv
+            model = cls.load(model_path, env=env, device="cpu", tensorboard_log=tb)
+        except Exception as err:  # a truncated or corrupted file from an interrupted run
+            print(f"--resume: {model_path.name} cannot be loaded ({type(err).__name__}); trying an earlier "
+                  "checkpoint", file=sys.stderr)
+            continue
+        if (model_path, stats_path, steps) != found[0]:
+            print(f"--resume: continuing from {model_path.name}", file=sys.stderr)
+        return model, env, steps
+    raise ValueError(f"--resume: no intact checkpoint in {folder} (every one is unreadable or lacks its "
+                     "statistics file)")
+
+
+def _continue_evaluations(callback, log_path: Path) -> None:
+    """Give a resumed run's EvalCallback the earlier evaluations and best reward, so its history and
+    best model continue instead of restarting."""
+    path = log_path / "evaluations.npz"
+    if not path.is_file():
+        return
+    with np.load(path, allow_pickle=False) as data:
+        callback.evaluations_timesteps = [int(t) for t in data["timesteps"]]
+        callback.evaluations_results = [list(r) for r in data["results"]]
+        callback.evaluations_length = [list(r) for r in data["ep_lengths"]]
+    if callback.evaluations_results:
+        callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
 
 
 def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "startup", seed: int = 0,
@@ -93,31 +131,26 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     venv = make_vec_env(env_id, n_envs, seed=train_seed, **env_kwargs)
     eval_env = make_vec_env(env_id, n_eval_episodes, seed=eval_seed, **env_kwargs)
     norm_kwargs = normalize if isinstance(normalize, dict) else ({} if normalize else None)
-    latest = _latest_checkpoint(ckpt_dir) if resume else None
-    if resume and latest is None:
-        raise ValueError(f"--resume: no checkpoint in {ckpt_dir}")
-    if norm_kwargs is not None:
-        if latest is not None and latest[1] is not None:
-            venv = VecNormalize.load(str(latest[1]), venv)
-        else:
-            venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
-                                                                                if k not in ("norm_reward",)})
-    if latest is not None:
-        model = cls.load(latest[0], env=venv, device="cpu", tensorboard_log=str(run / "tb"))
-        done_steps = latest[2]
+    if resume:
+        model, venv, done_steps = _resume_from(cls, ckpt_dir, venv, norm_kwargs is not None, str(run / "tb"))
     else:
+        if norm_kwargs is not None:
+            venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
         model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
         done_steps = 0
+    if norm_kwargs is not None:
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
+                                                                                if k not in ("norm_reward",)})
+    eval_cb = EvalCallback(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
+                           best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
+                           verbose=0)
+    if resume:
+        _continue_evaluations(eval_cb, run / "eval")
     callbacks = CallbackList([
-        CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True),
-        EvalCallback(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
-                     best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
-                     verbose=0),
-    ])
+        CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True), eval_cb])
     start = time.time()
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
-                reset_num_timesteps=latest is None, tb_log_name=algo)
+                reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
     model.save(run / "model.zip")
     if isinstance(venv, VecNormalize):
@@ -138,16 +171,16 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     card["validation"] = validation_result(run, card)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
-    if save_dir:
+    if save_dir:  # model, statistics and card replace the folder's as a whole
+        from millvib_env._paths import atomic_folder
+
         dest = Path(save_dir)
-        dest.mkdir(parents=True, exist_ok=True)
-        for name in ("model.zip", "vecnormalize.npz"):
-            if (run / name).exists():
-                tmp = dest / f".{name}.tmp"
-                shutil.copyfile(run / name, tmp)
-                tmp.replace(dest / name)
         card["name"] = dest.name
-        write_text_atomic(dest / "card.json", json.dumps(card, indent=2))
+        with atomic_folder(dest) as tmp:
+            for name in ("model.zip", "vecnormalize.npz"):
+                if (run / name).exists():
+                    shutil.copyfile(run / name, tmp / name)
+            write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
     venv.close()
     eval_env.close()
     return card
