@@ -12,7 +12,7 @@ millvib: vertical vibration of a rolling mill's hydraulic screw-down system.
 
 A verified simulator of the paper's plant (servo valve, cylinder, oil compressibility and
 leakage, LuGre seal friction, 115.5 Hz pump pulsation, PID position loop), its vibration
-severity (ISO 10816, mm/s), Gymnasium environments and RL gain schedulers benchmarked against
+severity (ISO 20816-3-style, mm/s), Gymnasium environments and RL gain schedulers benchmarked against
 fixed-gain PIDs.
 
 commands:
@@ -216,7 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="one closed-loop run", description=(
         "Simulate one closed-loop plant from the paper's initial state (x0 = 1 mm at rest) and print its "
-        "vibration severity (mm/s RMS, 10-1000 Hz), ISO 10816-3 zone, kind of motion over the last 40 %% of "
+        "vibration severity (mm/s RMS, 10-1000 Hz), ISO 20816-3 zone, kind of motion over the last 40 %% of "
         "the run and RMS tracking error."))
     _add_plant_args(p)
     p.add_argument("--t-end", type=float, default=1.0, help="simulated time, s (default 1.0)")

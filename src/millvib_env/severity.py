@@ -126,7 +126,7 @@ def vibration_severity(signal: np.ndarray, fs: float, *, quantity: Quantity = "a
         sampled uniformly at `fs`.
     fs : sampling rate in Hz; the band's upper edge must be at or below fs/2.
     quantity : what `signal` is.
-    band : (low, high) Hz; ISO 10816-3 uses 10-1000 Hz for machines above 600 rpm.
+    band : (low, high) Hz; ISO 20816-3 uses 10-1000 Hz for machines above 600 rpm.
     """
     _, vel = band_velocity_spectrum(signal, fs, quantity=quantity, band=band)
     return 1000.0 * math.sqrt(_mean_square(vel, 2 * len(signal)))

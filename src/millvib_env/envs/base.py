@@ -128,7 +128,7 @@ class GainScheduleEnv(MillVibEnv):
     e = xd - x sampled at 10 kHz over the period:
     ``r = -(w_v RMS(v_b) / 4.5 mm/s + w_e RMS(e) / 10 um + w_u mean|a_t - a_(t-1)|) - P [terminated]``
     with w_v = w_e = 1, w_u = 0.05, P = 100 (all in the config's ``reward`` section). 4.5 mm/s is the
-    ISO 10816-3 B/C boundary. The benchmark's episode cost is
+    ISO 20816-3 B/C boundary. The benchmark's episode cost is
     ``severity / 4.5 + tracking_rms / 10 um``; minus the mean per-step reward is the same sum with
     per-step RMS values, so it equals the cost for a steady response and is at most the cost
     (RMS of means <= overall RMS) when the response changes over the episode.

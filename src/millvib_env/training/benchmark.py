@@ -33,11 +33,48 @@ __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "
 DEFAULT_EPISODES = 40
 
 
-def cvar(values: Sequence[float], worst_fraction: float = 0.2) -> float:
-    """Mean of the worst (largest) `worst_fraction` of the values (at least one)."""
-    v = np.sort(np.asarray(values, float))[::-1]
-    k = max(1, int(math.ceil(worst_fraction * v.size)))
-    return float(np.mean(v[:k]))
+def cvar(values: Sequence[float], worst_fraction: float = 0.2, axis: int = -1) -> float | np.ndarray:
+    """Mean of the worst (largest) `worst_fraction` of the values (at least one), along `axis`."""
+    v = -np.sort(-np.asarray(values, float), axis=axis)
+    k = max(1, int(math.ceil(worst_fraction * v.shape[axis])))
+    out = np.mean(np.take(v, np.arange(k), axis=axis), axis=axis)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+#: bootstrap settings of every interval the benchmark reports (scipy.stats.bootstrap, BCa)
+BOOTSTRAP = {"n_resamples": 2000, "confidence_level": 0.95, "method": "BCa"}
+BOOTSTRAP_SEED = 12345
+
+
+def interval(values: Sequence[float], statistic) -> list[float]:
+    """95 % bootstrap interval of `statistic` over episodes (scipy.stats.bootstrap, BCa, seeded)."""
+    from scipy import stats
+
+    v = np.asarray(values, float)
+    if v.size < 3 or not np.all(np.isfinite(v)) or np.ptp(v) == 0:
+        value = float(statistic(v, axis=-1)) if v.size else math.nan
+        return [value, value]
+    res = stats.bootstrap((v,), statistic, rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+
+
+def paired_difference(costs: Sequence[float], reference: Sequence[float]) -> dict:
+    """Relative difference of mean costs to a reference on the same episodes, with its paired 95 %
+    bootstrap interval, and the probability of improvement (share of episodes cheaper than the
+    reference; ties count half)."""
+    from scipy import stats
+
+    a, b = np.asarray(costs, float), np.asarray(reference, float)
+    ratio = lambda x, y, axis=-1: np.mean(x, axis=axis) / np.mean(y, axis=axis) - 1.0  # noqa: E731
+    diff = float(ratio(a, b))
+    if a.size >= 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.ptp(a - b) > 0:
+        res = stats.bootstrap((a, b), ratio, paired=True, vectorized=True,
+                              rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
+        ci = [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+    else:
+        ci = [diff, diff]
+    p_improvement = float(np.mean((a < b) + 0.5 * (a == b)))
+    return {"cost_diff_rel": diff, "ci": ci, "p_improvement": p_improvement}
 
 
 def summarize(records: Sequence[dict]) -> dict:
@@ -49,6 +86,7 @@ def summarize(records: Sequence[dict]) -> dict:
            "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
            "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
            "cost_median": float(np.median(cost)), "cost_cvar20": cvar(cost), "cost_worst": float(np.max(cost)),
+           "cost_mean_ci": interval(cost, np.mean), "cost_cvar20_ci": interval(cost, cvar),
            "iso_zones": zones, "episodes": len(records)}
     for key in ("severity_start_mm_s", "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s",
                 "c1_log_error", "ct_log_error"):
@@ -113,9 +151,13 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     ref = result["records"].get("pid-robust")
     if ref is not None:
         stable = {r["seed"] for r in ref if not r["diverged"]}
+        ref_cost = [r["cost"] for r in ref]
         for name, recs in result["records"].items():
             result["controllers"][name]["diverged_where_pid_robust_stable"] = int(
                 sum(r["diverged"] and r["seed"] in stable for r in recs))
+            if name != "pid-robust":
+                result["controllers"][name]["paired_vs_pid_robust"] = paired_difference(
+                    [r["cost"] for r in recs], ref_cost)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
 
@@ -126,12 +168,19 @@ def format_table(result: dict) -> str:
              f"{result['cost_scales']['severity_mm_s']} mm/s + tracking RMS / {result['cost_scales']['tracking_um']} um; "
              "CVaR-20 = mean of the worst 20 % of episodes; severity split at 0.1 s",
              "",
-             "| controller | cost mean | cost CVaR-20 | severity mean (mm/s) | p95 | first 0.1 s | rest | pump line | "
+             "| controller | cost mean [95 % CI] | cost CVaR-20 [95 % CI] | vs pid-robust [95 % CI] | "
+             "P(better) | severity mean (mm/s) | p95 | first 0.1 s | rest | pump line | "
              "10-100 Hz | tracking RMS (um) | zones A/B/C/D | diverged |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in result["controllers"].items():
         z = s["iso_zones"]
-        lines.append(f"| {name} | {s['cost_mean']:.3g} | {s['cost_cvar20']:.3g} | {s['severity_mean']:.3g} | "
+        pr = s.get("paired_vs_pid_robust")
+        vs = (f"{100 * pr['cost_diff_rel']:+.1f} % [{100 * pr['ci'][0]:+.1f}, {100 * pr['ci'][1]:+.1f}]" if pr
+              else "-")
+        pb = f"{pr['p_improvement']:.2f}" if pr else "-"
+        lines.append(f"| {name} | {s['cost_mean']:.3g} [{s['cost_mean_ci'][0]:.3g}, {s['cost_mean_ci'][1]:.3g}] | "
+                     f"{s['cost_cvar20']:.3g} [{s['cost_cvar20_ci'][0]:.3g}, {s['cost_cvar20_ci'][1]:.3g}] | {vs} | {pb} | "
+                     f"{s['severity_mean']:.3g} | "
                      f"{s['severity_p95']:.3g} | {s.get('severity_start_mean', math.nan):.3g} | "
                      f"{s.get('severity_rest_mean', math.nan):.3g} | {s.get('pump_line_mean', math.nan):.3g} | "
                      f"{s.get('low_band_mean', math.nan):.3g} | {s['tracking_rms_um_mean']:.3g} | "
