@@ -165,67 +165,102 @@ def simulate_one(p, c0, y0, xd, dt_out, rtol, atol, p_max, max_steps, ys):
 
 
 @njit(cache=True, parallel=True)
-def simulate_batch_kernel(P, C, Y0, XD, dt_out, rtol, ATOL, p_max, max_steps, YS,
-                          status, t_fail, n_steps):
-    """simulate_one for N plants in parallel (numba prange over plants)."""
+def simulate_batch_parallel(P, C, Y0, XD, dt_out, rtol, ATOL, p_max, max_steps, YS, status, t_fail, n_steps):
+    """simulate_one for N plants on numba's threads (prange over plants)."""
     for b in prange(P.shape[0]):
-        s, tf, ns = simulate_one(P[b], C[b], Y0[b], XD[b], dt_out, rtol, ATOL[b], p_max, max_steps,
-                                 YS[b])
-        status[b] = s
-        t_fail[b] = tf
-        n_steps[b] = ns
+        status[b], t_fail[b], n_steps[b] = simulate_one(P[b], C[b], Y0[b], XD[b], dt_out, rtol, ATOL[b], p_max,
+                                                        max_steps, YS[b])
 
 
-@njit(cache=True, parallel=True)
-def advance_batch(P, C, Y, F, H, T, XD, DFL, active, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS, AUXS,
-                  status, n_valid, n_steps):
-    """Advance N plants by one agent period of len(XD[b]) sub-intervals of dt_sub seconds each.
+@njit(cache=True)
+def simulate_batch_serial(P, C, Y0, XD, dt_out, rtol, ATOL, p_max, max_steps, YS, status, t_fail, n_steps):
+    """simulate_one for N plants in this thread (no thread pool is started)."""
+    for b in range(P.shape[0]):
+        status[b], t_fail[b], n_steps[b] = simulate_one(P[b], C[b], Y0[b], XD[b], dt_out, rtol, ATOL[b], p_max,
+                                                        max_steps, YS[b])
 
-    The environments' stepping kernel. Per plant b (if active[b]): the drive C[b] (gains, valve
-    command, eccentricity) is held over the period; xd and the force offset take XD[b, j], DFL[b, j]
-    in sub-interval j. Y[b] (state), F[b] (FSAL derivative, recomputed here), H[b] (step size) and
+
+@njit(cache=True)
+def advance_one(b, P, C, Y, F, H, T, XD, DFL, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS, AUXS,
+                status, n_valid, n_steps):
+    """Advance plant b by one agent period of len(XD[b]) sub-intervals of dt_sub seconds each.
+
+    The environments' stepping kernel. The drive C[b] (gains, valve command, eccentricity, plant
+    change) is held over the period; xd and the force offset take XD[b, j], DFL[b, j] in
+    sub-interval j. Y[b] (state), F[b] (FSAL derivative, recomputed here), H[b] (step size) and
     T[b] (time) are carried from call to call. Writes spp samples per sub-interval: YS[b, 0] and
     AUXS[b, 0] are the state at the start of the period, then k = 1 .. n_sub*spp at
     T[b] + k dt_sub/spp. n_valid[b] counts the samples written (fewer if the plant left its
     envelope: status[b] != 0).
     """
+    p = P[b]
+    c = C[b]
+    y = Y[b]
+    f = F[b]
+    ys = YS[b]
+    auxs = AUXS[b]
+    t0 = T[b]
+    dt_s = dt_sub / spp
+    c[C_XD] = XD[b, 0]
+    c[C_DFL] = DFL[b, 0]
+    plant_rhs(t0, y, p, c, f, auxs[0])
+    for i in range(NY):
+        ys[0, i] = y[i]
+    scratch = np.empty(NAUX)
+    t = t0
+    h = H[b]
+    k = 1
+    total = 0
+    st = 0
+    for j in range(XD.shape[1]):
+        if j > 0 and (XD[b, j] != c[C_XD] or DFL[b, j] != c[C_DFL]):
+            c[C_XD] = XD[b, j]
+            c[C_DFL] = DFL[b, j]
+            plant_rhs(t, y, p, c, f, scratch)
+        t, h, k, st, ns = advance(t, t0 + (j + 1) * dt_sub, y, f, h, p, c, rtol, ATOL[b], p_max,
+                                  max_steps - total, t0, dt_s, k, ys, auxs, True)
+        total += ns
+        if st != 0:
+            break
+    T[b] = t
+    H[b] = h
+    status[b] = st
+    n_valid[b] = k
+    n_steps[b] = total
+
+
+@njit(cache=True, parallel=True)
+def advance_batch_parallel(P, C, Y, F, H, T, XD, DFL, active, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS,
+                           AUXS, status, n_valid, n_steps):
+    """`advance_one` for every active plant, on numba's threads."""
     for b in prange(P.shape[0]):
-        if not active[b]:
-            continue
-        p = P[b]
-        c = C[b]
-        y = Y[b]
-        f = F[b]
-        ys = YS[b]
-        auxs = AUXS[b]
-        t0 = T[b]
-        dt_s = dt_sub / spp
-        c[C_XD] = XD[b, 0]
-        c[C_DFL] = DFL[b, 0]
-        plant_rhs(t0, y, p, c, f, auxs[0])
-        for i in range(NY):
-            ys[0, i] = y[i]
-        scratch = np.empty(NAUX)
-        t = t0
-        h = H[b]
-        k = 1
-        total = 0
-        st = 0
-        for j in range(XD.shape[1]):
-            if j > 0 and (XD[b, j] != c[C_XD] or DFL[b, j] != c[C_DFL]):
-                c[C_XD] = XD[b, j]
-                c[C_DFL] = DFL[b, j]
-                plant_rhs(t, y, p, c, f, scratch)
-            t, h, k, st, ns = advance(t, t0 + (j + 1) * dt_sub, y, f, h, p, c, rtol, ATOL[b], p_max,
-                                      max_steps - total, t0, dt_s, k, ys, auxs, True)
-            total += ns
-            if st != 0:
-                break
-        T[b] = t
-        H[b] = h
-        status[b] = st
-        n_valid[b] = k
-        n_steps[b] = total
+        if active[b]:
+            advance_one(b, P, C, Y, F, H, T, XD, DFL, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS, AUXS,
+                        status, n_valid, n_steps)
+
+
+@njit(cache=True)
+def advance_batch_serial(P, C, Y, F, H, T, XD, DFL, active, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS,
+                         AUXS, status, n_valid, n_steps):
+    """`advance_one` for every active plant, in this thread (no thread pool is started)."""
+    for b in range(P.shape[0]):
+        if active[b]:
+            advance_one(b, P, C, Y, F, H, T, XD, DFL, dt_sub, spp, rtol, ATOL, p_max, max_steps, YS, AUXS,
+                        status, n_valid, n_steps)
+
+
+def simulate_batch_kernel(P, *args) -> None:
+    """The batched simulation on threads or serially, as `threads.use_threads` decides."""
+    from millvib_env.threads import use_threads
+
+    (simulate_batch_parallel if use_threads(P.shape[0], "simulate") else simulate_batch_serial)(P, *args)
+
+
+def advance_batch(P, *args) -> None:
+    """The environments' batched step on threads or serially, as `threads.use_threads` decides."""
+    from millvib_env.threads import use_threads
+
+    (advance_batch_parallel if use_threads(P.shape[0], "step") else advance_batch_serial)(P, *args)
 
 
 @njit(cache=True)
@@ -255,5 +290,5 @@ def rhs_vector(t, y, p, c):
     return dy
 
 
-__all__ = ["advance", "advance_batch", "simulate_one", "simulate_batch_kernel", "aux_at", "rhs_vector",
-           "STATUS_TEXT"]
+__all__ = ["advance", "advance_one", "advance_batch", "simulate_one", "simulate_batch_kernel", "aux_at",
+           "rhs_vector", "STATUS_TEXT"]

@@ -122,7 +122,11 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     env_kwargs = dict(hp.pop("env_kwargs", None) or {})
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
-    torch.set_num_threads(1)  # small networks: threads cost more than they give; the plant kernel has its own
+    torch.set_num_threads(1)  # small networks: threads cost more than they give
+    from millvib_env.threads import configured_threads, set_num_threads
+
+    if configured_threads() is None:
+        set_num_threads(1)  # the learner dominates; idle plant threads slow torch (millvib_env.threads)
 
     run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
                            else f"{algo}_{env_id}_{the_task.name}_s{seed}")

@@ -1,0 +1,62 @@
+"""How the compiled kernels use threads: by measurement, with one documented knob.
+
+* Small batches (fewer than `MIN_PARALLEL` plants: the single env, small vector envs) run serially
+  and never start a thread pool.
+* Larger batches use numba's threads (`prange` over plants); their number is numba's, i.e. every
+  core, unless ``MILLVIB_NUM_THREADS`` says otherwise (the knob: an integer >= 1; 1 = always serial).
+* The threading layer defaults to numba's ``workqueue`` (set before numba loads one, unless
+  ``NUMBA_THREADING_LAYER`` is set): it is fork-safe, so ``gym.make_vec(..., vectorization_mode=
+  "async")`` and SB3's ``SubprocVecEnv(start_method="fork")`` work after the parent has stepped a
+  batch. GNU OpenMP, numba's default on Linux, aborts a forked child ("fork() called from a
+  process already using GNU OpenMP") and shares its pool with torch's.
+* `millvib train` runs the plant serially (MILLVIB_NUM_THREADS unset means 1 there): the learner
+  takes most of the wall time and idle numba threads slow torch.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "THREADS_ENV"]
+
+THREADS_ENV = "MILLVIB_NUM_THREADS"
+#: batches smaller than this run serially
+MIN_PARALLEL = 8
+
+_override: int | None = None
+
+
+def configured_threads() -> int | None:
+    """The knob's value (None: not set), from `set_num_threads` or MILLVIB_NUM_THREADS."""
+    if _override is not None:
+        return _override
+    raw = os.environ.get(THREADS_ENV)
+    if raw is None or raw.strip() == "":
+        return None
+    try:
+        value = int(raw)
+    except ValueError:
+        raise ValueError(f"{THREADS_ENV} = {raw!r} is invalid: an integer >= 1") from None
+    if value < 1:
+        raise ValueError(f"{THREADS_ENV} = {raw!r} is invalid: an integer >= 1")
+    return value
+
+
+def set_num_threads(n: int | None) -> None:
+    """Set the knob from code (None: back to MILLVIB_NUM_THREADS / numba's default)."""
+    global _override
+    if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
+        raise ValueError(f"threads = {n!r} is invalid: an integer >= 1 or None")
+    _override = n
+
+
+def use_threads(n_plants: int, purpose: str = "") -> bool:
+    """Whether a batch of `n_plants` runs on threads (and with how many: numba's setting)."""
+    wanted = configured_threads()
+    if wanted == 1 or n_plants < MIN_PARALLEL:
+        return False
+    import numba
+
+    if wanted is not None:
+        numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))
+    return numba.get_num_threads() > 1
