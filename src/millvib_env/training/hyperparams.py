@@ -15,7 +15,10 @@ from typing import Any
 
 from millvib_env._yaml import load_yaml
 
-__all__ = ["parse_zoo_value", "load_hyperparams", "ACTIVATIONS"]
+__all__ = ["parse_zoo_value", "load_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
+
+#: our algorithm name -> the zoo's (and the file under configs/agents/)
+ZOO_ALGO = {"ppo": "ppo", "sac": "sac", "recurrentppo": "ppo_lstm"}
 
 #: the torch.nn activations a config may name (as nn.<name>)
 ACTIVATIONS = ("ReLU", "Tanh", "ELU", "LeakyReLU", "GELU", "SiLU", "Sigmoid", "Softplus", "Mish")
@@ -59,7 +62,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     """The hyperparameters of `algo` for `env_id` from configs/agents/<algo>.yml (or `path`)."""
     from millvib_env._paths import config_dir
 
-    path = Path(path) if path else config_dir() / "agents" / f"{algo}.yml"
+    path = Path(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     if not path.is_file():
         raise ValueError(f"hyperparameter file {path} not found")
     try:
