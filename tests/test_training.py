@@ -114,3 +114,18 @@ def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
         run_benchmark([str(tmp_path / "agent")], task="startup", episodes=1, progress=False)
     result = run_benchmark([str(tmp_path / "agent"), "pid-robust"], task="rolling", episodes=2, progress=False)
     assert result["task"] == "rolling" and result["seed"] == 120_000
+
+
+def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
+    from millvib_env.training.train import train_seeds
+
+    cfg = tmp_path / "ppo.yml"
+    cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
+    cards = train_seeds([4, 5], jobs=2, save_dir=str(tmp_path / "agent"), algo="ppo", config=str(cfg),
+                        log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2, checkpoint_freq=128)
+    assert [c["seed"] for c in cards] == [4, 5]
+    for s in (4, 5):
+        assert (tmp_path / f"agent-s{s}" / "card.json").exists()
+        assert (tmp_path / "runs" / f"ppo_MillVib-GainSchedule-v0_s{s}" / "card.json").exists()
+    with pytest.raises(ValueError, match="training seed 60"):
+        train_seeds([60], algo="ppo", config=str(cfg))

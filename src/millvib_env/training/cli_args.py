@@ -12,7 +12,14 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="environment id (default MillVib-GainSchedule-v0), the key in the YAML")
     p.add_argument("--task", default="startup",
                    help="task whose episodes and training seeds to use: startup, rolling or change (default startup)")
-    p.add_argument("--seed", type=int, default=0, help="training seed (default 0); evaluation plants use seed+1000")
+    seeds = p.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=int, default=0,
+                       help="training seed, 0-49 (default 0); it picks the task's training and evaluation plants")
+    seeds.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
+                       help="several training seeds, each its own run folder and model card; run in --jobs local "
+                            "processes (with --save-dir D, seed s goes to D-s<s>)")
+    p.add_argument("--jobs", type=int, default=2,
+                   help="local processes for --seeds (default 2: two trainings at a time, one plant thread each)")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
     p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
     p.add_argument("--log-dir", default="runs", help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed>")

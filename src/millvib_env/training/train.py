@@ -28,7 +28,7 @@ import numpy as np
 from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
 
-__all__ = ["load_hyperparams", "train", "train_from_cli", "ALGOS"]
+__all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
 #: validation plants per model card: the first of the task's validation seeds
@@ -209,18 +209,51 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     return {"seeds": f"{seeds[0]}-{seeds[-1]}", **{k: summary[k] for k in keep}}
 
 
+def _train_job(kwargs: dict) -> dict:
+    """One seed's training in a worker process (no progress bar: seeds run side by side)."""
+    return train(**kwargs)
+
+
+def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, **kwargs) -> list[dict]:
+    """Train several seeds in `jobs` local processes (spawned, so no thread pool or torch state is
+    inherited); seed s is saved to `save_dir`-s<s>. Returns the model cards in seed order."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    seeds = list(dict.fromkeys(seeds))
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"--jobs {jobs!r} is invalid: a whole number >= 1")
+    from millvib_env.tasks import get_task
+
+    task = get_task(kwargs.get("task", "startup"))
+    for s in seeds:
+        task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
+    job_args = [{**kwargs, "seed": s, "progress": False,
+                 "save_dir": None if save_dir is None else f"{save_dir}-s{s}"} for s in seeds]
+    if jobs == 1:
+        return [train(**a) for a in job_args]
+    with cf.ProcessPoolExecutor(max_workers=min(jobs, len(seeds)), mp_context=mp.get_context("spawn")) as pool:
+        return list(pool.map(_train_job, job_args))
+
+
 def train_from_cli(args) -> int:
     from millvib_env._paths import check_output
 
     check_output(args.save_dir, "--save-dir", folder=True)
     check_output(args.log_dir, "--log-dir", folder=True)
     for flag, value in (("--n-timesteps", args.n_timesteps), ("--eval-freq", args.eval_freq),
-                        ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq)):
+                        ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq),
+                        ("--jobs", args.jobs)):
         if value is not None and value < 1:
             raise ValueError(f"{flag} {value} is invalid: a whole number >= 1")
-    card = train(args.algo, args.env, task=args.task, seed=args.seed, n_timesteps=args.n_timesteps, config=args.config,
-                 log_dir=args.log_dir, save_dir=args.save_dir, resume=args.resume, eval_freq=args.eval_freq,
-                 n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                 progress=not args.quiet, command="millvib " + " ".join(sys.argv[1:]))
+    common = dict(algo=args.algo, env_id=args.env, task=args.task, n_timesteps=args.n_timesteps, config=args.config,
+                  log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
+                  n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
+                  command="millvib " + " ".join(sys.argv[1:]))
+    if args.seeds:
+        cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, **common)
+        print(json.dumps(cards, indent=2))
+        return 0
+    card = train(seed=args.seed, save_dir=args.save_dir, progress=not args.quiet, **common)
     print(json.dumps(card, indent=2))
     return 0
