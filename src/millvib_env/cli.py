@@ -24,6 +24,7 @@ commands:
   tasks       the benchmark's tasks (startup, rolling, change) and their seed ranges
   train       train a PPO / SAC / RecurrentPPO agent from configs/agents/
   benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
+  sweep       controllers over many plants with wide parameter ranges (local processes or Ray)
 
 examples:
   millvib simulate --set c1=1.25e5 --kp 3.5e6 --plot run.png
@@ -200,6 +201,12 @@ def _cmd_train(args) -> int:
     return train_from_cli(args)
 
 
+def _cmd_sweep(args) -> int:
+    from millvib_env.training.sweep import sweep_from_cli
+
+    return sweep_from_cli(args)
+
+
 def _cmd_benchmark(args) -> int:
     from millvib_env.training.benchmark import benchmark_from_cli
 
@@ -285,6 +292,23 @@ def build_parser() -> argparse.ArgumentParser:
         "for startup, on every named scenario; report cost (mean and CVaR-20), severity (mean, p95, first "
         "0.1 s, rest, pump line, 10-100 Hz), ISO zones, tracking RMS and divergence. With no arguments: every "
         "baseline and every shipped agent of the startup task.")), _cmd_benchmark)
+    p = sub.add_parser("sweep", help="controllers over many plants", description=(
+        "A robustness sweep: every controller on N plants of a task with the swept parameters drawn over wide "
+        "ranges (c1, Ct: the paper's, log-uniform; beta_e, mt, FL: +-20 %% of Table 1), from held-out seeds. Writes "
+        "plants.csv, summary.json and maps.png to --out. Runs in local processes (--jobs) or on Ray (--ray)."))
+    p.add_argument("--controllers", nargs="+", required=True, help="baselines or agents, as for benchmark")
+    p.add_argument("--plants", type=int, required=True, help="number of plants (episodes per controller)")
+    p.add_argument("--params", nargs="+", default=["c1", "Ct"], metavar="NAME",
+                   help="parameters to sweep: c1 Ct beta_e mt FL (default c1 Ct)")
+    p.add_argument("--task", default="startup", help="task (default startup)")
+    p.add_argument("--seed", type=int, default=None, help="first plant seed (default: 40000 into the task's "
+                                                          "held-out range)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced as a whole)")
+    p.add_argument("--jobs", type=int, default=1, help="local processes (default 1)")
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="run on Ray: a local cluster, or the running cluster at ADDRESS")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_sweep)
     return parser
 
 

@@ -108,11 +108,25 @@ def distinct_plant_scenarios() -> list[str]:
     return names
 
 
+def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
+                    env_kwargs: dict | None = None) -> list[dict]:
+    """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep)."""
+    ctrl = load_controller(name, task)
+    ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
+    return run_episodes(ctrl, seeds, env_id=ctrl_env, task=task, env_kwargs=env_kwargs)
+
+
+#: episodes per job when a benchmark is spread over Ray
+CHUNK = 50
+
+
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
                   episodes: int = DEFAULT_EPISODES, seed: int | None = None, env_id: str = "MillVib-GainSchedule-v0",
-                  scenarios: bool | None = None, progress: bool = True) -> dict:
+                  scenarios: bool | None = None, progress: bool = True, ray: str | None = None) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
-    `episodes` held-out plants of `task` from episode seed `seed` (default: the first held-out seed)."""
+    `episodes` held-out plants of `task` from episode seed `seed` (default: the first held-out seed).
+    With `ray` (an address, or "" for a local cluster) controllers x chunks of CHUNK episodes run as
+    Ray tasks; each episode depends only on its seed, so the numbers are the local run's."""
     t = get_task(task)
     if seed is None:
         seed = t.seeds["heldout"].start
@@ -129,14 +143,25 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     result: dict = {"controllers": {}, "task": t.name, "seed": seed, "episodes": episodes, "env_id": env_id,
                     "cost_scales": dict(COST_SCALES), "scenarios": {}, "records": {}}
     start = time.time()
+    distributed = None
+    if ray is not None:
+        from millvib_env.distributed import run_jobs
+
+        jobs = [{"name": n, "task": t.name, "seeds": seeds[i:i + CHUNK], "env_id": env_id}
+                for n in names for i in range(0, len(seeds), CHUNK)]
+        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {t.name} (ray)")
+        distributed = {n: [] for n in names}
+        for job, part in zip(jobs, parts):
+            distributed[job["name"]].extend(part)
     iterator = names
-    if progress:
+    if progress and distributed is None:
         from tqdm.auto import tqdm
         iterator = tqdm(names, desc=f"benchmark {t.name}", unit="controller")
     for name in iterator:
         ctrl = loaded[name]
         ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
-        recs = run_episodes(ctrl, seeds, env_id=ctrl_env, task=t.name)
+        recs = distributed[name] if distributed is not None else run_episodes(ctrl, seeds, env_id=ctrl_env,
+                                                                              task=t.name)
         summary = summarize(recs)
         summary["env_id"] = ctrl_env
         result["controllers"][name] = summary
@@ -337,7 +362,7 @@ def benchmark_from_cli(args) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes} is invalid: at least 1")
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
-                           scenarios=False if args.no_scenarios else None, progress=not args.quiet)
+                           scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray)
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

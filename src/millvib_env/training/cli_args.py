@@ -20,6 +20,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                             "processes (with --save-dir D, seed s goes to D-s<s>)")
     p.add_argument("--jobs", type=int, default=2,
                    help="local processes for --seeds (default 2: two trainings at a time, one plant thread each)")
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="run each seed as a Ray task (1 CPU each): on a local cluster, or on the running cluster at "
+                        "ADDRESS (e.g. auto, ray://head:10001); needs pip install -e '.[ray]'")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
     p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
     p.add_argument("--log-dir", default="runs", help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed>")
@@ -48,6 +51,9 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="first episode seed of the held-out plants (default: the task's first held-out seed, "
                         "20000 for startup; a seed outside the task's held-out range is refused)")
     p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios (startup only)")
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "
+                        "at ADDRESS; results equal the local run's for the same seed")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -74,7 +74,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
                 info = infos[i]
                 sev, trk = float(info["severity"]), float(info["tracking_rms_um"])
                 records[i] = {"seed": int(seeds[i]), "scenario": scenario, "c1": first_params[i]["c1"],
-                              "Ct": first_params[i]["Ct"],
+                              "Ct": first_params[i]["Ct"], "beta_e": first_params[i]["beta_e"],
+                              "mt": first_params[i]["mt"], "FL": first_params[i]["FL"],
                               "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
                               "severity_mm_s": sev, "tracking_rms_um": trk,
                               "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),

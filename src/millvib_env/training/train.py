@@ -209,31 +209,23 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     return {"seeds": f"{seeds[0]}-{seeds[-1]}", **{k: summary[k] for k in keep}}
 
 
-def _train_job(kwargs: dict) -> dict:
-    """One seed's training in a worker process (no progress bar: seeds run side by side)."""
-    return train(**kwargs)
-
-
-def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, **kwargs) -> list[dict]:
-    """Train several seeds in `jobs` local processes (spawned, so no thread pool or torch state is
-    inherited); seed s is saved to `save_dir`-s<s>. Returns the model cards in seed order."""
-    import concurrent.futures as cf
-    import multiprocessing as mp
+def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str | None = None,
+                cpus_per_seed: float = 1.0, **kwargs) -> list[dict]:
+    """Train several seeds: in `jobs` local spawned processes (no thread pool or torch state is
+    inherited), or each as a Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local
+    cluster, or an address). Seed s is saved to `save_dir`-s<s>. Returns the cards in seed order."""
+    from millvib_env.distributed import run_jobs
+    from millvib_env.tasks import get_task
 
     seeds = list(dict.fromkeys(seeds))
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"--jobs {jobs!r} is invalid: a whole number >= 1")
-    from millvib_env.tasks import get_task
-
     task = get_task(kwargs.get("task", "startup"))
     for s in seeds:
         task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
     job_args = [{**kwargs, "seed": s, "progress": False,
                  "save_dir": None if save_dir is None else f"{save_dir}-s{s}"} for s in seeds]
-    if jobs == 1:
-        return [train(**a) for a in job_args]
-    with cf.ProcessPoolExecutor(max_workers=min(jobs, len(seeds)), mp_context=mp.get_context("spawn")) as pool:
-        return list(pool.map(_train_job, job_args))
+    return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed)
 
 
 def train_from_cli(args) -> int:
@@ -251,8 +243,12 @@ def train_from_cli(args) -> int:
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
                   command="millvib " + " ".join(sys.argv[1:]))
     if args.seeds:
-        cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, **common)
+        cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
+        return 0
+    if args.ray is not None:
+        cards = train_seeds([args.seed], save_dir=None, ray=args.ray, **common)
+        print(json.dumps(cards[0], indent=2))
         return 0
     card = train(seed=args.seed, save_dir=args.save_dir, progress=not args.quiet, **common)
     print(json.dumps(card, indent=2))

@@ -1,0 +1,43 @@
+"""Scale-out: seeds, benchmark chunks and sweeps as Ray tasks on a local 2-CPU cluster equal the local run."""
+import pytest
+
+ray = pytest.importorskip("ray")
+
+from millvib_env.training.benchmark import public_json, run_benchmark  # noqa: E402
+from millvib_env.training.sweep import run_sweep  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def local_cluster():
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"MILLVIB_NUM_THREADS": "1"}})
+    yield ""
+    ray.shutdown()
+
+
+def test_a_sweep_on_ray_equals_the_local_run(local_cluster):
+    kw = dict(task="startup", params=["c1", "Ct", "mt"], progress=False)
+    local = run_sweep(["pid-robust"], 6, **kw)
+    remote = run_sweep(["pid-robust"], 6, ray=local_cluster, **kw)
+    assert local["records"] == remote["records"]
+    assert min(r["mt"] for r in local["records"]["pid-robust"]) != max(r["mt"] for r in local["records"]["pid-robust"])
+
+
+def test_a_benchmark_on_ray_equals_the_local_run(local_cluster):
+    kw = dict(task="rolling", episodes=3, progress=False)
+    local = public_json(run_benchmark(["pid-paper", "pid-robust"], **kw))
+    remote = public_json(run_benchmark(["pid-paper", "pid-robust"], ray=local_cluster, **kw))
+    assert local == remote
+
+
+def test_seeds_train_as_ray_tasks_and_match_local_training(local_cluster, tmp_path):
+    from millvib_env.training.train import train_seeds
+    from tests.test_training import EXTRA, TINY
+
+    cfg = tmp_path / "ppo.yml"
+    cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
+    kw = dict(algo="ppo", config=str(cfg), eval_freq=128, n_eval_episodes=2, checkpoint_freq=128)
+    on_ray = train_seeds([6, 7], ray=local_cluster, log_dir=str(tmp_path / "ray"), **kw)
+    local = train_seeds([6, 7], jobs=1, log_dir=str(tmp_path / "local"), **kw)
+    for a, b in zip(on_ray, local):
+        assert a["seed"] == b["seed"] and a["validation"] == b["validation"]
