@@ -15,7 +15,14 @@ All on the task's tuning seeds (configs/tasks.yaml), disjoint from its held-out 
 * pid-adaptive: the estimator's forgetting time constant, over the pid-robust plants.
 
 pid-nominal, pid-robust and pid-oracle are grid searches over log10 (KP, KI, KD) followed by
-Nelder-Mead (millvib_env.training.tuning). A task may take an entry from another task (`--from
+Nelder-Mead (millvib_env.training.tuning). With --optuna STORAGE, pid-nominal and pid-robust are
+tuned by an Optuna study instead (TPE), whose storage several machines share: run the same command
+on each, e.g.
+
+    python scripts/tune_pid.py --task rolling --only pid-robust --optuna journal:/shared/tune.log --trials 100
+    python scripts/tune_pid.py --task rolling --only pid-robust --optuna postgresql://user@db/tuning --trials 100
+
+and the last to finish writes the study's best gains (each run writes the best so far). A task may take an entry from another task (`--from
 rolling` for `change`: the oracle's per-plant table and the LQR weights are properties of plants,
 not of the episode).
 """
@@ -32,7 +39,7 @@ from tqdm.auto import tqdm
 from millvib_env._paths import config_dir, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.tasks import get_task, list_tasks
-from millvib_env.training.tuning import tune, tune_adaptive, tune_lqr
+from millvib_env.training.tuning import tune, tune_adaptive, tune_lqr, tune_optuna
 
 ENTRIES = ("pid-nominal", "pid-robust", "pid-oracle", "lqr-oracle", "pid-adaptive")
 
@@ -44,6 +51,10 @@ def main() -> None:
     ap.add_argument("--from", dest="from_task", choices=list_tasks(),
                     help="take pid-oracle and lqr-oracle from this task instead of tuning them")
     ap.add_argument("--grid", type=int, default=5, help="oracle grid points per axis (default 5)")
+    ap.add_argument("--optuna", metavar="STORAGE", help="tune pid-nominal and pid-robust by an Optuna study in "
+                                                        "STORAGE (journal:PATH or a database URL), shared by "
+                                                        "every process that names it")
+    ap.add_argument("--trials", type=int, default=60, help="Optuna trials this process runs (default 60)")
     args = ap.parse_args()
     task = get_task(args.task)
     first = task.seeds["tuning"].start
@@ -58,6 +69,17 @@ def main() -> None:
                              "log10 300}, then Nelder-Mead (60 iterations) from the best grid point")
     todo = args.only or list(ENTRIES)
     start = time.time()
+    if args.optuna:
+        for name, seeds, pinned in (("pid-nominal", nominal_seeds, {"c1": 2.25e6, "Ct": 5e-16}),
+                                    ("pid-robust", robust_seeds, None)):
+            if name in todo:
+                print(f"tuning {name} with Optuna ({args.optuna}) ...", flush=True)
+                res = tune_optuna(seeds, task=task.name, storage=args.optuna, study_name=f"{task.name}-{name}",
+                                  n_trials=args.trials, params=pinned)
+                out[name] = {**res, "seeds": [seeds[0], seeds[-1]],
+                             "how": f"Optuna TPE study {task.name}-{name} over log10 gains ({res['n_trials']} trials)"}
+                print(f"  {res}", flush=True)
+                todo = [t for t in todo if t != name]
     if "pid-nominal" in todo:
         print("tuning pid-nominal on the nominal plant ...", flush=True)
         res = tune(nominal_seeds, task=task.name, params={"c1": 2.25e6, "Ct": 5e-16})

@@ -196,15 +196,54 @@ ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
 def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS) -> dict:
     """The estimator's forgetting time constant with the lowest mean cost on `seeds`."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
-    from millvib_env.control.policies import load_controller
+    from millvib_env.control.policies import oracle_table
 
-    base = load_controller("pid-adaptive", task)
+    cfg = load_env_config(get_task(task).config)
+    table, gain_map = oracle_table(task), GainMap.from_config(cfg)
     costs = {}
     for tau in taus:
-        ctrl = AdaptivePolicy(base.table, base.gain_map, EstimatorSettings(tau_s=tau), base.nominal)
+        ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params)
         recs = run_episodes(ctrl, list(seeds), task=task)
         costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
     tau = min(costs, key=costs.get)
     return {"estimator": {"tau_s": tau, "highpass_hz": EstimatorSettings().highpass_hz,
                           "min_info": EstimatorSettings().min_info},
             "tuning_costs": {str(k): round(v, 4) for k, v in costs.items()}}
+
+
+def optuna_storage(storage: str):
+    """An Optuna storage from a CLI string: ``journal:PATH`` (a journal file several machines can share
+    on a common file system) or a database URL (``sqlite:///tune.db``, ``postgresql://...``)."""
+    import optuna
+
+    if storage.startswith("journal:"):
+        from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+        return JournalStorage(JournalFileBackend(storage[len("journal:"):]))
+    if "://" not in storage:
+        raise ValueError(f"--storage {storage!r} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
+    return optuna.storages.RDBStorage(storage)
+
+
+def tune_optuna(seeds: Sequence[int], *, task: str, storage: str, study_name: str, n_trials: int,
+                params: dict | None = None, sampler_seed: int | None = None) -> dict:
+    """PID gains by an Optuna study (TPE) over log10 KP, KI, KD in the action bounds, minimising the
+    mean cost on `seeds`; several processes or machines running this with the same storage and
+    study name share the study. Returns the study's best gains so far."""
+    import optuna
+
+    gain_map = GainMap.from_config(load_env_config(get_task(task).config))
+    lo, hi = gain_map.log_lo, gain_map.log_hi
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(study_name=study_name, storage=optuna_storage(storage), direction="minimize",
+                                load_if_exists=True, sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+
+    def objective(trial) -> float:
+        u = np.array([trial.suggest_float(name, lo[k], hi[k]) for k, name in enumerate(("log10_kp", "log10_ki",
+                                                                                       "log10_kd"))])
+        return float(mean_costs(u[None, :], seeds, task=task, params=params)[0])
+
+    study.optimize(objective, n_trials=n_trials)
+    best = np.array([study.best_params[k] for k in ("log10_kp", "log10_ki", "log10_kd")])
+    return {"gains": [float(g) for g in 10.0 ** best], "log10_gains": [round(float(v), 4) for v in best],
+            "tuning_cost": round(float(study.best_value), 4), "n_trials": len(study.trials)}
