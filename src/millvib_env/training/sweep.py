@@ -99,6 +99,7 @@ def _maps(result: dict):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
+    from matplotlib.ticker import NullFormatter
 
     params = result["summary"]["params"]
     names = list(result["records"])
@@ -119,6 +120,7 @@ def _maps(result: dict):
             for axis, p in (("x", px), ("y", py)):
                 if RANGES[p][0] == "loguniform":
                     getattr(ax, f"set_{axis}scale")("log")
+                    getattr(ax, f"{axis}axis").set_minor_formatter(NullFormatter())
     fig.colorbar(sc, ax=axes, label="episode cost", shrink=0.6)
     return fig
 
