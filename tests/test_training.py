@@ -129,3 +129,14 @@ def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
         assert (tmp_path / "runs" / f"ppo_MillVib-GainSchedule-v0_s{s}" / "card.json").exists()
     with pytest.raises(ValueError, match="training seed 60"):
         train_seeds([60], algo="ppo", config=str(cfg))
+
+
+def test_sweep_cli_writes_its_folder(tmp_path):
+    out = tmp_path / "sweep"
+    assert cli_main(["sweep", "--controllers", "pid-paper", "pid-robust", "--plants", "4", "--params", "c1", "Ct",
+                     "beta_e", "--out", str(out), "--quiet"]) == 0
+    for name in ("plants.csv", "summary.json", "maps.png"):
+        assert (out / name).exists()
+    data = json.loads((out / "summary.json").read_text())
+    assert data["plants"] == 4 and set(data["controllers"]) == {"pid-paper", "pid-robust"}
+    assert data["seed"] == 60_000  # 40000 into startup's held-out range

@@ -4,7 +4,10 @@
   action that maps to its gains (pid-paper, pid-nominal, pid-robust).
 * `OraclePolicy`: knows the plant's true c1 and Ct (the evaluation loop hands it ``info["params"]``
   at every reset and step) and uses gains tuned offline for that plant, interpolated on a
-  (log c1, log Ct) grid: the bound for a fixed-gain PID, not a deployable controller.
+  (log c1, log Ct) grid: the bound for a fixed-gain PID on a fixed plant, not a deployable
+  controller. On the `change` task it takes the table's gains for the plant of the moment (the
+  `rolling` table): no longer a bound there, since gains tuned for fixed plants need not handle
+  the change itself.
 * `LQRPolicy` (`lqr-oracle`): knows c1 and Ct and designs an LQR with integral action for the
   PID + pressure-feedback structure on the linearised plant (`control.lqr`).
 * `AdaptivePolicy` (`pid-adaptive`, `control.adaptive`): estimates c1 and Ct online from what a
