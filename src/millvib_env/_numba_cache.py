@@ -26,10 +26,6 @@ STALE_DAYS = 30
 
 
 def configure() -> None:
-    # a fork-safe threading layer (see millvib_env.threads), unless the user chose one
-    os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
-    if "numba" in sys.modules:
-        sys.modules["numba"].config.THREADING_LAYER = os.environ["NUMBA_THREADING_LAYER"]
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
     pkg = Path(__file__).resolve().parent

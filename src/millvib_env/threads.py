@@ -4,11 +4,14 @@
   and never start a thread pool.
 * Larger batches use numba's threads (`prange` over plants); their number is numba's, i.e. every
   core, unless ``MILLVIB_NUM_THREADS`` says otherwise (the knob: an integer >= 1; 1 = always serial).
-* The threading layer defaults to numba's ``workqueue`` (set before numba loads one, unless
-  ``NUMBA_THREADING_LAYER`` is set): it is fork-safe, so ``gym.make_vec(..., vectorization_mode=
-  "async")`` and SB3's ``SubprocVecEnv(start_method="fork")`` work after the parent has stepped a
-  batch. GNU OpenMP, numba's default on Linux, aborts a forked child ("fork() called from a
-  process already using GNU OpenMP") and shares its pool with torch's.
+* Fork-based vectorisation (``gym.make_vec(..., vectorization_mode="async")``, SB3's
+  ``SubprocVecEnv(start_method="fork")``) works after the parent has stepped a threaded batch and
+  run torch: its workers step single environments, which run serially and never touch the
+  parent's OpenMP pool (a forked child that did would abort: "fork() called from a process already
+  using GNU OpenMP"). The threading layer stays numba's default (OpenMP here): measured on 64 valve
+  envs it stepped 75k env steps/s against 45k for the fork-safe ``workqueue`` layer.
+  ``NUMBA_THREADING_LAYER=workqueue`` chooses the latter where a forked child must run large
+  batches itself.
 * `millvib train` runs the plant serially (MILLVIB_NUM_THREADS unset means 1 there): the learner
   takes most of the wall time and idle numba threads slow torch.
 """
