@@ -290,7 +290,8 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | No
         axes[1].plot(tr["t"] * 1e3, tr["v"] * 1e3, lw=0.6, color=color)
         if len(tr["gains"]):
             steps = np.arange(len(tr["gains"])) * tr["step_s"] * 1e3
-            axes[2].step(steps, np.log10(tr["gains"][:, 0]), where="post", lw=1.0, color=color)
+            kp = tr["gains"][:, 0]
+            axes[2].step(steps, np.log10(np.where(kp > 0, kp, np.nan)), where="post", lw=1.0, color=color)
     if scenario is not None:
         axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
                                            "fixed PIDs against agents")
@@ -299,7 +300,7 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | No
         axes[0].set(ylabel="x (um)", title=f"Task '{task}', held-out plant {seed}: {tr['info']['params']}"[:110])
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
-    axes[2].set(ylabel="log10 KP (gain schedulers)", xlabel="t (ms)")
+    axes[2].set(ylabel="log10 KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
