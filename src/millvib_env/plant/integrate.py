@@ -213,7 +213,7 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     ----------
     params, gains : plant and PID gains (default: Table 1 and the paper's KP=1e5, KI=1e-3, KD=0).
     t_end : simulated time (s); samples every `dt_out` s from 0 to t_end.
-    x0 : initial displacement (m); the plant starts at rest with zero acceleration (MODEL.md).
+    x0 : initial displacement (m); the plant starts at rest with zero acceleration (docs/model.md).
     xd : set-point (m): a constant, a function of t, or samples on the output grid (held between
         samples; the integration restarts at every change).
     method : "fast" (compiled BS3(2)) or "reference" (solve_ivp with `ivp_method`).

@@ -28,7 +28,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--log-dir", default="runs", help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed>")
     p.add_argument("--save-dir", help="where the final model, VecNormalize stats and model card go "
                                       "(default: the run folder)")
-    p.add_argument("--resume", action="store_true", help="continue from the run folder's last checkpoint")
+    p.add_argument("--resume", action="store_true",
+                   help="continue from the run folder's newest intact checkpoint (checkpoints are trusted code: "
+                        "they are unpickled)")
     p.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N environment steps (default 10000)")
     p.add_argument("--n-eval-episodes", type=int, default=8, help="episodes per evaluation (default 8)")
     p.add_argument("--checkpoint-freq", type=int, default=20_000, help="checkpoint every N steps (default 20000)")
@@ -42,8 +44,9 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "changes mid-episode); configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
                    help="controllers to evaluate: pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
-                        "lqr-oracle, agent names (folders under agents/, e.g. ppo-gain) or paths to agent folders "
-                        "(default: every baseline and every shipped agent trained on the task)")
+                        "lqr-oracle, agent names (folders under agents/, e.g. ppo-gain; verified against agents/MANIFEST.sha256) or "
+                        "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip (default: every "
+                        "baseline and every shipped agent trained on the task)")
     p.add_argument("--env", default="MillVib-GainSchedule-v0",
                    help="environment id the plants are drawn from (default MillVib-GainSchedule-v0)")
     p.add_argument("--episodes", type=int, default=40, help="held-out plants per controller (default 40)")
