@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "THREADS_ENV"]
+__all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "serial_unless_set",
+           "THREADS_ENV"]
 
 THREADS_ENV = "MILLVIB_NUM_THREADS"
 #: batches smaller than this run serially
@@ -63,3 +64,16 @@ def use_threads(n_plants: int, purpose: str = "") -> bool:
     if wanted is not None:
         numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))
     return numba.get_num_threads() > 1
+
+
+class serial_unless_set:
+    """Context: run the plant serially inside, unless the knob is set; restores the knob after."""
+
+    def __enter__(self):
+        self._saved = _override
+        if configured_threads() is None:
+            set_num_threads(1)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        set_num_threads(self._saved)

@@ -96,7 +96,17 @@ def _continue_evaluations(callback, log_path: Path) -> None:
         callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
 
 
-def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "startup", seed: int = 0,
+def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", **kwargs) -> dict:
+    """Train one agent; returns its model card (also written to the run folder). Keyword arguments
+    as `_train`. The plant runs serially unless MILLVIB_NUM_THREADS says otherwise: the learner
+    dominates and idle plant threads slow torch (`millvib_env.threads`)."""
+    from millvib_env.threads import serial_unless_set
+
+    with serial_unless_set():
+        return _train(algo, env_id, **kwargs)
+
+
+def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "startup", seed: int = 0,
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
@@ -123,10 +133,6 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "st
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give
-    from millvib_env.threads import configured_threads, set_num_threads
-
-    if configured_threads() is None:
-        set_num_threads(1)  # the learner dominates; idle plant threads slow torch (millvib_env.threads)
 
     run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
                            else f"{algo}_{env_id}_{the_task.name}_s{seed}")
