@@ -11,7 +11,7 @@ least squares in information form: the information matrix and vector decay by
 
 * leakage, from the continuity equation (4) integrated over the period:
   ``int(QL - Ap v) dt - (Ap (L1 + x) / beta_e) dpL = Ct int(pL - pb) dt``, with the valve flow QL
-  computed from the measured command and pressures through the valve's data-sheet model (1)-(3);
+  of the measured command from the valve's model (1)-(3), evaluated by `plant_rhs` itself;
 * damping, from the force balance (8): ``mt (a_model - a) - (FL(t) - FL) = c1 v``, where a_model
   is the plant's own right-hand side (`plant_rhs`, the one implementation) evaluated at the
   measured x, v, pL with c1 = 0 and the nominal load, FL(t) the load cells' rolling force, and
@@ -38,19 +38,20 @@ from scipy import signal as ssig
 from millvib_env.control.policies import GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
 from millvib_env.params import MillParams
-from millvib_env.plant.model import D_KQ, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
+from millvib_env.plant.model import A_QL, C_UEXT, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
 
 
 @njit(cache=True)
-def model_acceleration(t, x, v, pL, z0, p, out):
+def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
     """Acceleration of the plant model `p` (c1 = 0 there) at the measured samples, with the bristle
     state integrated along the measured velocity (trapezoidal rule on plant_rhs's bristle rate,
-    which is affine in z; the trapezoidal rule adds no phase lag, which would read as damping).
-    Writes out[k]; returns the bristle state after the last sample."""
+    which is affine in z; the trapezoidal rule adds no phase lag, which would read as damping),
+    and the valve flow QL of the measured command (the valve's model, Eq. 1-3, from the same
+    plant_rhs). Writes out[k] and flow[k]; returns the bristle state after the last sample."""
     y = np.zeros(NY)
     dy = np.empty(NY)
     aux = np.empty(NAUX)
-    c = np.zeros(NC)
+    c = np.zeros(NC)  # the PID off: the measured command is the valve's input
     z_ref = p[P_FS] / p[P_S0]
     z = z0
     d_prev = 0.0
@@ -60,6 +61,7 @@ def model_acceleration(t, x, v, pL, z0, p, out):
         y[IV] = v[k]
         y[IPL] = pL[k]
         y[IZ] = 0.0
+        c[C_UEXT] = 0.0
         plant_rhs(t[k], y, p, c, dy, aux)
         dz0 = dy[IZ]
         y[IZ] = z_ref
@@ -70,8 +72,10 @@ def model_acceleration(t, x, v, pL, z0, p, out):
             z = (z * (1.0 - h * r_prev) + h * (d_prev + dz0)) / (1.0 + h * rate)
         d_prev, r_prev = dz0, rate
         y[IZ] = z
+        c[C_UEXT] = u[k]
         plant_rhs(t[k], y, p, c, dy, aux)
         out[k] = dy[IV]
+        flow[k] = aux[A_QL]
     return z
 
 
@@ -102,8 +106,6 @@ class PlantEstimator:
 
     def __init__(self, params: MillParams, settings: EstimatorSettings, sample_rate_hz: float = 10_000.0):
         self.params, self.settings, self.fs = params, settings, sample_rate_hz
-        p = pack(params)
-        self.kq = float(p[D_KQ])
         self.p_model = pack(params.replace(c1=0.0))  # valve flow gain Cd W sqrt(2/rho) Ksv Kp1 (data sheet)
         self.sos = ssig.butter(2, settings.highpass_hz, btype="highpass", fs=sample_rate_hz, output="sos")
         self.n = 0
@@ -142,18 +144,19 @@ class PlantEstimator:
         self.err_c1[i], self.err_ct[i] = [], []
         self.last[i] = None
 
-    def valve_flow(self, u: np.ndarray, pL: np.ndarray, ps: np.ndarray) -> np.ndarray:
-        """QL from the valve's data-sheet model (1)-(3) with the plant's regularised root."""
-        p = self.params
-        dp = np.where(u >= 0.0, ps - pL, pL - p.pt)
-        return self.kq * u * dp / np.sqrt(np.sqrt(dp * dp + p.dp_reg**2))
-
     def update(self, i: int, sig: dict) -> None:
         p, dt = self.params, 1.0 / self.fs
         m = sig["x"].size
         decay = math.exp(-m * dt / self.settings.tau_s)
+        cols = [sig[k] for k in ("t", "x", "v", "pL", "u")]
+        if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
+            cols = [np.concatenate([[prev], col]) for prev, col in zip(self.last[i], cols)]
+        a_model, ql = np.empty(cols[0].size), np.empty(cols[0].size)
+        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model, ql)
+        a_model, ql = a_model[-m:], ql[-m:]
+        self.last[i] = tuple(col[-1] for col in cols)
         # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
-        net = self.valve_flow(sig["u"], sig["pL"], sig["ps"]) - p.Ap * sig["v"]
+        net = ql - p.Ap * sig["v"]
         comp = p.Ap * (p.L1 + sig["x"]) / p.beta_e  # oil compliance V / beta_e
         lk = sig["pL"] - p.pb
         prev = self.flow_prev[i]
@@ -170,13 +173,6 @@ class PlantEstimator:
         if self.ct_den[i] > 0:
             self.ct_hat[i] = float(np.clip(self.ct_num[i] / self.ct_den[i], *self.CT_RANGE))
         # damping: the force balance's residual against the model without damping, high-passed
-        cols = [sig[k] for k in ("t", "x", "v", "pL")]
-        if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
-            cols = [np.concatenate([[prev], col]) for prev, col in zip(self.last[i], cols)]
-        a_model = np.empty(cols[0].size)
-        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model)
-        a_model = a_model[-m:]
-        self.last[i] = tuple(col[-1] for col in cols)
         force = p.mt * (a_model - sig["a"]) - (sig["FL"] - p.FL)
         phi, self.zi[i, 0] = ssig.sosfilt(self.sos, sig["v"] / self.V_SCALE, zi=self.zi[i, 0])
         rhs_f, self.zi[i, 1] = ssig.sosfilt(self.sos, force, zi=self.zi[i, 1])
