@@ -17,6 +17,7 @@ never trained on.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import sys
 import time
@@ -96,6 +97,10 @@ def _continue_evaluations(callback, log_path: Path) -> None:
         callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
 
 
+#: a seed of a multi-seed agent lives in <agent>/seed-<s>/
+_SEED_FOLDER = re.compile(r"seed-\d+")
+
+
 def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", **kwargs) -> dict:
     """Train one agent; returns its model card (also written to the run folder). Keyword arguments
     as `_train`. The plant runs serially unless MILLVIB_NUM_THREADS says otherwise: the learner
@@ -110,7 +115,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
-          progress: bool = True, command: str | None = None) -> dict:
+          progress: bool = True, command: str | None = None, note: str | None = None) -> dict:
     """Train one agent; returns its model card (also written to the run folder)."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
@@ -178,6 +183,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
                                 for k, v in hp.items()},
             "policy": policy, "normalize": repr(normalize),
             "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
+    if note:
+        card["note"] = note
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     card["validation"] = validation_result(run, card)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
@@ -185,7 +192,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
         from millvib_env._paths import atomic_folder
 
         dest = Path(save_dir)
-        card["name"] = dest.name
+        card["name"] = dest.parent.name if _SEED_FOLDER.fullmatch(dest.name) else dest.name
         with atomic_folder(dest) as tmp:
             for name in ("model.zip", "vecnormalize.npz"):
                 if (run / name).exists():
@@ -219,7 +226,7 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
                 cpus_per_seed: float = 1.0, **kwargs) -> list[dict]:
     """Train several seeds: in `jobs` local spawned processes (no thread pool or torch state is
     inherited), or each as a Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local
-    cluster, or an address). Seed s is saved to `save_dir`-s<s>. Returns the cards in seed order."""
+    cluster, or an address). Seed s is saved to `save_dir`/seed-<s>/. Returns the cards in seed order."""
     from millvib_env.distributed import run_jobs
     from millvib_env.tasks import get_task
 
@@ -230,7 +237,7 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
     for s in seeds:
         task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
     job_args = [{**kwargs, "seed": s, "progress": False,
-                 "save_dir": None if save_dir is None else f"{save_dir}-s{s}"} for s in seeds]
+                 "save_dir": None if save_dir is None else str(Path(save_dir) / f"seed-{s}")} for s in seeds]
     return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed)
 
 
@@ -247,7 +254,7 @@ def train_from_cli(args) -> int:
     common = dict(algo=args.algo, env_id=args.env, task=args.task, n_timesteps=args.n_timesteps, config=args.config,
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                  command="millvib " + " ".join(sys.argv[1:]))
+                  command="millvib " + " ".join(sys.argv[1:]), note=args.note)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
