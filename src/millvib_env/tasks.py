@@ -49,6 +49,22 @@ class Task:
                 return purpose
         return None
 
+    def heldout_plants(self, n: int, seed: int = 0) -> list[int]:
+        """`n` distinct held-out episode seeds (plants) drawn by a generator seeded with `seed`,
+        in increasing order: different seeds give mostly different plants, never a shifted range."""
+        import numpy as np
+
+        rng_ = self.seeds["heldout"]
+        if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= len(rng_):
+            raise ValueError(f"episodes {n!r} is invalid: a whole number in [1, {len(rng_)}] (task {self.name!r} "
+                             f"has {len(rng_)} held-out plants)")
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"seed {seed!r} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")
+        picks = np.random.default_rng(seed).choice(len(rng_), size=n, replace=False)
+        plants = sorted(rng_.start + int(i) for i in picks)
+        self.check_heldout(plants)
+        return plants
+
     def check_heldout(self, seeds) -> None:
         """Refuse held-out seeds outside the task's held-out range (they may be training plants)."""
         rng = self.seeds["heldout"]

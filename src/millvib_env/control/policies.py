@@ -33,7 +33,7 @@ from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
 __all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "LQRPolicy", "AgentPolicy", "GainTable",
-           "load_controller", "baseline_names", "list_agents", "load_control_config", "BASELINES"]
+           "load_controller", "baseline_names", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
 
 #: every baseline by name, with what it is
 BASELINES = {
@@ -205,6 +205,7 @@ class AgentPolicy(Controller):
             raise ValueError(f"{card_path} is not a valid model card ({type(err).__name__}: {err}); it needs at "
                              "least 'algo' and 'env_id'") from None
         self.name = self.card.get("name", folder.name)
+        self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
         self.task = self.card.get("task", "startup")
         self.env_kwargs = dict(self.card.get("env_kwargs", {}))
@@ -266,19 +267,61 @@ def baseline_names() -> list[str]:
     return list(BASELINES)
 
 
+def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
+    """The seeds of an agent folder: {seed: folder} for a single agent (card.json in the folder), or
+    one entry per `seed-<s>/` subfolder of a multi-seed agent (`millvib train --seeds`), by seed."""
+    folder = Path(folder)
+    if (folder / "card.json").exists():
+        try:
+            seed = int(json.loads((folder / "card.json").read_text()).get("seed", 0))
+        except (ValueError, TypeError, AttributeError):
+            seed = 0
+        return {seed: folder}
+    found = {}
+    for p in folder.glob("seed-*"):
+        if p.is_dir() and p.name[5:].isdigit() and (p / "card.json").exists():
+            found[int(p.name[5:])] = p
+    return dict(sorted(found.items()))
+
+
+def _agent_task(folder: Path) -> str:
+    first = next(iter(agent_seed_folders(folder).values()))
+    try:
+        return json.loads((first / "card.json").read_text()).get("task", "startup")
+    except (ValueError, AttributeError) as err:
+        raise ValueError(f"{first / 'card.json'} is not a valid model card: {err}") from None
+
+
 def list_agents(task: str | None = None) -> list[str]:
-    """Shipped agents (folders under agents/ with a card), optionally only those trained on `task`."""
+    """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
+    optionally only those trained on `task`."""
     root = agents_dir()
     if not root.is_dir():
         return []
     names = []
     for p in sorted(root.iterdir()):
-        card = p / "card.json"
-        if card.exists():
-            if task is not None and json.loads(card.read_text()).get("task", "startup") != get_task(task).name:
+        if p.is_dir() and agent_seed_folders(p):
+            if task is not None and _agent_task(p) != get_task(task).name:
                 continue
             names.append(p.name)
     return names
+
+
+def agent_folder(name: str) -> Path:
+    """The folder of an agent given by name (under agents/) or by path; ValueError if there is none."""
+    path = Path(name)
+    if not path.exists():
+        path = agents_dir() / name
+    if not path.is_dir() or not agent_seed_folders(path):
+        raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
+                         f"{list_agents()} or an agent folder path (a folder with card.json, or seed-<s>/ "
+                         "folders that have one)")
+    return path
+
+
+def agent_seeds(name: str) -> list[int]:
+    """The training seeds an agent ships (one for a single-seed folder)."""
+    return list(agent_seed_folders(agent_folder(name)))
 
 
 def oracle_table(task: str) -> GainTable:
@@ -286,9 +329,10 @@ def oracle_table(task: str) -> GainTable:
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
-def load_controller(name: str, task: str = "startup", config: EnvConfig | None = None) -> Controller:
+def load_controller(name: str, task: str = "startup", config: EnvConfig | None = None,
+                    seed: int | None = None) -> Controller:
     """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
-    an agent folder path."""
+    an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest)."""
     task = get_task(task).name
     gain_map = GainMap.from_config(config or load_env_config(get_task(task).config))
     ctrl: Controller
@@ -311,13 +355,11 @@ def load_controller(name: str, task: str = "startup", config: EnvConfig | None =
         ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]),
                               load_env_config(get_task(task).config).base_params)
     else:
-        path = Path(name)
-        if not path.exists():
-            path = agents_dir() / name
-        if not path.is_dir():
-            raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
-                             f"{list_agents()} or an agent folder path")
-        ctrl = AgentPolicy(path)
-        return ctrl
+        seeds = agent_seed_folders(agent_folder(name))
+        if seed is None:
+            seed = next(iter(seeds))
+        if seed not in seeds:
+            raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
+        return AgentPolicy(seeds[seed])
     ctrl.task = task
     return ctrl

@@ -1,13 +1,16 @@
 """`millvib benchmark`: every controller of a task on the same held-out plants (and, for `startup`,
 on every named scenario).
 
-Held-out plants: episode seeds ``seed, seed+1, ...`` inside the task's held-out range
-(configs/tasks.yaml; a seed outside it is refused); each seed fixes the plant (c1, Ct), the
-disturbances and the start, identically in both environment modes, so gain schedulers, valve
-policies and fixed PIDs meet the same plants. Per controller: mean, median and 95th-percentile
-severity (mm/s), its start (first 0.1 s) and the rest, the pump line's and the 10-100 Hz band's
-levels, ISO zone counts, mean tracking RMS (um), diverged rate, mean episode cost
-(severity / 4.5 mm/s + tracking RMS / 10 um) and its CVaR-20 (mean of the worst 20 % of episodes).
+Held-out plants: `--episodes` episode seeds drawn without replacement from the task's held-out range
+(configs/tasks.yaml) by a generator seeded with `--seed`, so no plant is ever a training, tuning or
+validation plant; each seed fixes the plant (c1, Ct), the disturbances and the start, identically
+in both environment modes, so gain schedulers, valve policies and fixed PIDs meet the same plants.
+Agents run with their lowest training seed, or with every seed they ship (`--all-seeds`, the full
+protocol). Per controller: cost mean, IQM, CVaR-20, worst episode, severity and tracking means with
+95 % intervals (`millvib_env.training.stats`), diverged rate, the paired difference to `pid-robust`
+with the probability of improvement, the normalised score (0 = pid-robust, 1 = pid-oracle), the
+spread over training seeds, and the vibration detail (severity quantiles, its start and the rest,
+the pump line, the 10-100 Hz band, ISO zones). Cost = severity / 4.5 mm/s + tracking RMS / 10 um.
 """
 
 from __future__ import annotations
@@ -27,67 +30,49 @@ from millvib_env.control.policies import Controller, baseline_names, list_agents
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
+from millvib_env.training.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
-__all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES", "cvar"]
+__all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES",
+           "FULL_EPISODES", "cvar", "interval", "paired_difference"]
 
+#: held-out plants per controller: the quick run (one seed per agent) and the full protocol (--all-seeds)
 DEFAULT_EPISODES = 40
+FULL_EPISODES = 200
 
 
-def cvar(values: Sequence[float], worst_fraction: float = 0.2, axis: int = -1) -> float | np.ndarray:
-    """Mean of the worst (largest) `worst_fraction` of the values (at least one), along `axis`."""
-    v = -np.sort(-np.asarray(values, float), axis=axis)
-    k = max(1, int(math.ceil(worst_fraction * v.shape[axis])))
-    out = np.mean(np.take(v, np.arange(k), axis=axis), axis=axis)
-    return float(out) if np.ndim(out) == 0 else out
-
-
-#: bootstrap settings of every interval the benchmark reports (scipy.stats.bootstrap, BCa)
-BOOTSTRAP = {"n_resamples": 2000, "confidence_level": 0.95, "method": "BCa"}
-BOOTSTRAP_SEED = 12345
-
-
-def interval(values: Sequence[float], statistic) -> list[float]:
-    """95 % bootstrap interval of `statistic` over episodes (scipy.stats.bootstrap, BCa, seeded)."""
-    from scipy import stats
-
-    v = np.asarray(values, float)
-    if v.size < 3 or not np.all(np.isfinite(v)) or np.ptp(v) == 0:
-        value = float(statistic(v, axis=-1)) if v.size else math.nan
-        return [value, value]
-    res = stats.bootstrap((v,), statistic, rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
-    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
-
-
-def paired_difference(costs: Sequence[float], reference: Sequence[float]) -> dict:
-    """Relative difference of mean costs to a reference on the same episodes, with its paired 95 %
-    bootstrap interval, and the probability of improvement (share of episodes cheaper than the
-    reference; ties count half)."""
-    from scipy import stats
-
-    a, b = np.asarray(costs, float), np.asarray(reference, float)
-    ratio = lambda x, y, axis=-1: np.mean(x, axis=axis) / np.mean(y, axis=axis) - 1.0  # noqa: E731
-    diff = float(ratio(a, b))
-    if a.size >= 3 and np.all(np.isfinite(a)) and np.all(np.isfinite(b)) and np.ptp(a - b) > 0:
-        res = stats.bootstrap((a, b), ratio, paired=True, vectorized=True,
-                              rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
-        ci = [float(res.confidence_interval.low), float(res.confidence_interval.high)]
-    else:
-        ci = [diff, diff]
-    p_improvement = float(np.mean((a < b) + 0.5 * (a == b)))
-    return {"cost_diff_rel": diff, "ci": ci, "p_improvement": p_improvement}
+def _by_seed(records: Sequence[dict]) -> list[list[dict]]:
+    """Records split by the agent's training seed (`agent_seed`; one group for a fixed controller),
+    each group in plant order."""
+    groups: dict = {}
+    for r in records:
+        groups.setdefault(r.get("agent_seed"), []).append(r)
+    return [groups[k] for k in sorted(groups, key=lambda k: (k is not None, k if k is not None else -1))]
 
 
 def summarize(records: Sequence[dict]) -> dict:
+    """One controller's summary over its episodes (an agent's: every training seed x the plants).
+    The protocol's six metrics carry a 95 % interval (`millvib_env.training.stats`)."""
+    groups = _by_seed(records)
     sev = np.array([r["severity_mm_s"] for r in records], float)
     trk = np.array([r["tracking_rms_um"] for r in records], float)
     cost = np.array([r["cost"] for r in records], float)
     zones = {z: int(sum(r["iso_zone"] == z for r in records)) for z in "ABCD"}
-    out = {"severity_mean": float(np.mean(sev)), "severity_median": float(np.median(sev)),
-           "severity_p95": float(np.percentile(sev, 95)), "tracking_rms_um_mean": float(np.mean(trk)),
-           "diverged_rate": float(np.mean([r["diverged"] for r in records])), "cost_mean": float(np.mean(cost)),
-           "cost_median": float(np.median(cost)), "cost_cvar20": cvar(cost), "cost_worst": float(np.max(cost)),
-           "cost_mean_ci": interval(cost, np.mean), "cost_cvar20_ci": interval(cost, cvar),
-           "iso_zones": zones, "episodes": len(records)}
+    per = lambda key: [[r[key] for r in g] for g in groups]  # noqa: E731
+    out = {"cost_mean": float(np.mean(cost)), "cost_iqm": iqm(cost), "cost_cvar20": cvar(cost),
+           "cost_worst": float(np.max(cost)), "severity_mean": float(np.mean(sev)),
+           "tracking_rms_um_mean": float(np.mean(trk)),
+           "diverged_rate": float(np.mean([r["diverged"] for r in records])),
+           "n_seeds": len(groups), "episodes": len(groups[0]) if groups else 0}
+    for metric in ("mean", "iqm", "cvar20", "worst"):
+        out[f"cost_{metric}_ci"] = interval(per("cost"), METRICS[metric])
+    out["severity_mean_ci"] = interval(per("severity_mm_s"))
+    out["tracking_rms_um_mean_ci"] = interval(per("tracking_rms_um"))
+    out.update({"cost_median": float(np.median(cost)), "severity_median": float(np.median(sev)),
+                "severity_p95": float(np.percentile(sev, 95)), "iso_zones": zones})
+    if groups and groups[0][0].get("agent_seed") is not None:
+        out["per_seed"] = [{"seed": g[0]["agent_seed"], "cost_mean": float(np.mean([r["cost"] for r in g])),
+                            "cost_cvar20": cvar([r["cost"] for r in g]),
+                            "severity_mean": float(np.mean([r["severity_mm_s"] for r in g]))} for g in groups]
     for key in ("severity_start_mm_s", "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s",
                 "c1_log_error", "ct_log_error"):
         vals = [r[key] for r in records if key in r]
@@ -109,11 +94,21 @@ def distinct_plant_scenarios() -> list[str]:
 
 
 def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
-                    env_kwargs: dict | None = None) -> list[dict]:
-    """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep)."""
-    ctrl = load_controller(name, task)
-    ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
-    return run_episodes(ctrl, seeds, env_id=ctrl_env, task=task, env_kwargs=env_kwargs)
+                    env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[dict]:
+    """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep); for an agent,
+    its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`."""
+    ctrl = load_controller(name, task, seed=agent_seed)
+    return _run(ctrl, seeds, env_id, task, env_kwargs)
+
+
+def _run(ctrl: Controller, seeds, env_id: str, task: str, env_kwargs: dict | None = None, **kw) -> list[dict]:
+    is_agent = getattr(ctrl, "card", None) is not None
+    recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id if is_agent else env_id, task=task, env_kwargs=env_kwargs,
+                        **kw)
+    if is_agent:
+        for r in recs:
+            r["agent_seed"] = ctrl.seed
+    return recs
 
 
 #: episodes per job when a benchmark is spread over Ray
@@ -121,95 +116,146 @@ CHUNK = 50
 
 
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
-                  episodes: int = DEFAULT_EPISODES, seed: int | None = None, env_id: str = "MillVib-GainSchedule-v0",
-                  scenarios: bool | None = None, progress: bool = True, ray: str | None = None) -> dict:
+                  episodes: int | None = None, seed: int = 0, env_id: str = "MillVib-GainSchedule-v0",
+                  scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
+                  all_seeds: bool = False) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
-    `episodes` held-out plants of `task` from episode seed `seed` (default: the first held-out seed).
-    With `ray` (an address, or "" for a local cluster) controllers x chunks of CHUNK episodes run as
-    Ray tasks; each episode depends only on its seed, so the numbers are the local run's."""
+    `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
+    (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
+    ship (`all_seeds`, the full protocol; its default is FULL_EPISODES plants, DEFAULT_EPISODES
+    otherwise). With `ray` (an address, or "" for a local cluster) controllers x seeds x chunks of
+    CHUNK episodes run as Ray tasks; each episode depends only on its seeds, so the numbers are the
+    local run's."""
+    from millvib_env.control.policies import agent_seeds
+
     t = get_task(task)
-    if seed is None:
-        seed = t.seeds["heldout"].start
-    seeds = list(range(seed, seed + episodes))
-    t.check_heldout(seeds)
-    names = list(controllers) if controllers else baseline_names() + list_agents(t.name)
-    loaded: dict[str, Controller] = {n: load_controller(n, t.name) for n in names}
-    for name, ctrl in loaded.items():
-        if getattr(ctrl, "card", None) is not None and ctrl.task != t.name:
-            raise ValueError(f"agent {name!r} was trained on task {ctrl.task!r}, not {t.name!r}: benchmark it with "
-                             f"--task {ctrl.task}")
+    if episodes is None:
+        episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
+    plants = t.heldout_plants(episodes, seed)
+    names = list(dict.fromkeys(controllers)) if controllers else baseline_names() + list_agents(t.name)
+    units: list[tuple[str, int | None]] = []
+    loaded: dict[tuple, Controller] = {}
+    for n in names:
+        first = load_controller(n, t.name)
+        if getattr(first, "card", None) is not None:
+            if first.task != t.name:
+                raise ValueError(f"agent {n!r} was trained on task {first.task!r}, not {t.name!r}: benchmark it "
+                                 f"with --task {first.task}")
+            for s in (agent_seeds(n) if all_seeds else [first.seed]):
+                units.append((n, s))
+                loaded[(n, s)] = first if s == first.seed else load_controller(n, t.name, seed=s)
+        else:
+            units.append((n, None))
+            loaded[(n, None)] = first
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     result: dict = {"controllers": {}, "task": t.name, "seed": seed, "episodes": episodes, "env_id": env_id,
-                    "cost_scales": dict(COST_SCALES), "scenarios": {}, "records": {}}
+                    "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
+                    "scenarios": {}, "records": {}}
     start = time.time()
-    distributed = None
+    records: dict[tuple, list[dict]] = {}
     if ray is not None:
         from millvib_env.distributed import run_jobs
 
-        jobs = [{"name": n, "task": t.name, "seeds": seeds[i:i + CHUNK], "env_id": env_id}
-                for n in names for i in range(0, len(seeds), CHUNK)]
+        jobs = [{"name": n, "task": t.name, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
+                for n, s in units for i in range(0, len(plants), CHUNK)]
         parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {t.name} (ray)")
-        distributed = {n: [] for n in names}
         for job, part in zip(jobs, parts):
-            distributed[job["name"]].extend(part)
-    iterator = names
-    if progress and distributed is None:
-        from tqdm.auto import tqdm
-        iterator = tqdm(names, desc=f"benchmark {t.name}", unit="controller")
-    for name in iterator:
-        ctrl = loaded[name]
-        ctrl_env = ctrl.env_id if getattr(ctrl, "card", None) else env_id
-        recs = distributed[name] if distributed is not None else run_episodes(ctrl, seeds, env_id=ctrl_env,
-                                                                              task=t.name)
+            records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
+    else:
+        iterator = units
+        if progress:
+            from tqdm.auto import tqdm
+            iterator = tqdm(units, desc=f"benchmark {t.name}", unit="run")
+        for unit in iterator:
+            records[unit] = _run(loaded[unit], plants, env_id, t.name)
+    for name in names:
+        recs = [r for (n, _), part in records.items() if n == name for r in part]
+        first = loaded[next(u for u in units if u[0] == name)]
         summary = summarize(recs)
-        summary["env_id"] = ctrl_env
+        summary["env_id"] = first.env_id if getattr(first, "card", None) is not None else env_id
         result["controllers"][name] = summary
         result["records"][name] = recs
         if scenarios:
             sc_recs = {}
             for sc in distinct_plant_scenarios():
-                rec = run_episodes(ctrl, [seed], scenario=sc, env_id=ctrl_env, task=t.name)[0]
+                rec = _run(first, [plants[0]], env_id, t.name, scenario=sc)[0]
                 sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
                                                    "cost")}
             result["scenarios"][name] = sc_recs
-    ref = result["records"].get("pid-robust")
-    if ref is not None:
-        stable = {r["seed"] for r in ref if not r["diverged"]}
-        ref_cost = [r["cost"] for r in ref]
-        for name, recs in result["records"].items():
-            result["controllers"][name]["diverged_where_pid_robust_stable"] = int(
-                sum(r["diverged"] and r["seed"] in stable for r in recs))
-            if name != "pid-robust":
-                result["controllers"][name]["paired_vs_pid_robust"] = paired_difference(
-                    [r["cost"] for r in recs], ref_cost)
+    _compare(result)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
 
 
+def _compare(result: dict) -> None:
+    """Paired comparisons on the same plants: the difference to pid-robust and the normalised score
+    (0 = pid-robust, 1 = pid-oracle)."""
+    ref = result["records"].get("pid-robust")
+    oracle = result["records"].get("pid-oracle")
+    if ref is None:
+        return
+    stable = {r["seed"] for r in ref if not r["diverged"]}
+    ref_cost = [r["cost"] for r in ref]
+    for name, recs in result["records"].items():
+        summary = result["controllers"][name]
+        summary["diverged_where_pid_robust_stable"] = int(sum(r["diverged"] and r["seed"] in stable for r in recs))
+        costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
+        if name != "pid-robust":
+            summary["paired_vs_pid_robust"] = paired_difference(costs, ref_cost)
+        if oracle is not None:
+            summary["normalized_score"] = normalized_score(costs, ref_cost, [r["cost"] for r in oracle])
+
+
+def _ci(s: dict, key: str, fmt: str = ".3g") -> str:
+    lo, hi = s[f"{key}_ci"]
+    return f"{s[key]:{fmt}} [{lo:{fmt}}, {hi:{fmt}}]"
+
+
 def format_table(result: dict) -> str:
-    lines = [f"Task {result.get('task', 'startup')}, held-out plants: {result['episodes']} episodes, seeds "
-             f"{result['seed']}-{result['seed'] + result['episodes'] - 1}; cost = severity / "
-             f"{result['cost_scales']['severity_mm_s']} mm/s + tracking RMS / {result['cost_scales']['tracking_um']} um; "
-             "CVaR-20 = mean of the worst 20 % of episodes; severity split at 0.1 s",
+    ctrls = result["controllers"]
+    seeds_line = ("every training seed of every agent (the full protocol, --all-seeds)" if result.get("all_seeds")
+                  else "one training seed per agent (its lowest; the full protocol is --all-seeds)")
+    lines = [f"Task {result.get('task', 'startup')}: {result['episodes']} held-out plants drawn with seed "
+             f"{result['seed']}; {seeds_line}. Cost = severity / {result['cost_scales']['severity_mm_s']} mm/s + "
+             f"tracking RMS / {result['cost_scales']['tracking_um']} um; IQM = mean of the middle 50 % of episodes; "
+             "CVaR-20 = mean of the worst 20 %; [95 % bootstrap intervals: plants resampled within each training "
+             "seed; paired to pid-robust on the same plants]; score: 0 = pid-robust, 1 = pid-oracle",
              "",
-             "| controller | cost mean [95 % CI] | cost CVaR-20 [95 % CI] | vs pid-robust [95 % CI] | "
-             "P(better) | severity mean (mm/s) | p95 | first 0.1 s | rest | pump line | "
-             "10-100 Hz | tracking RMS (um) | zones A/B/C/D | diverged |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for name, s in result["controllers"].items():
-        z = s["iso_zones"]
+             "| controller | seeds | cost mean | cost IQM | cost CVaR-20 | worst episode | vs pid-robust | P(better) | "
+             "score | severity (mm/s) | tracking RMS (um) | diverged |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, s in ctrls.items():
         pr = s.get("paired_vs_pid_robust")
         vs = (f"{100 * pr['cost_diff_rel']:+.1f} % [{100 * pr['ci'][0]:+.1f}, {100 * pr['ci'][1]:+.1f}]" if pr
               else "-")
         pb = f"{pr['p_improvement']:.2f}" if pr else "-"
-        lines.append(f"| {name} | {s['cost_mean']:.3g} [{s['cost_mean_ci'][0]:.3g}, {s['cost_mean_ci'][1]:.3g}] | "
-                     f"{s['cost_cvar20']:.3g} [{s['cost_cvar20_ci'][0]:.3g}, {s['cost_cvar20_ci'][1]:.3g}] | {vs} | {pb} | "
-                     f"{s['severity_mean']:.3g} | "
-                     f"{s['severity_p95']:.3g} | {s.get('severity_start_mean', math.nan):.3g} | "
-                     f"{s.get('severity_rest_mean', math.nan):.3g} | {s.get('pump_line_mean', math.nan):.3g} | "
-                     f"{s.get('low_band_mean', math.nan):.3g} | {s['tracking_rms_um_mean']:.3g} | "
-                     f"{z['A']}/{z['B']}/{z['C']}/{z['D']} | {100 * s['diverged_rate']:.0f} % |")
+        ns = s.get("normalized_score")
+        sc = f"{ns['score']:+.2f} [{ns['ci'][0]:+.2f}, {ns['ci'][1]:+.2f}]" if ns and name != "pid-robust" else "-"
+        lines.append(f"| {name} | {s['n_seeds']} | {_ci(s, 'cost_mean')} | {_ci(s, 'cost_iqm')} | "
+                     f"{_ci(s, 'cost_cvar20')} | {_ci(s, 'cost_worst')} | {vs} | {pb} | {sc} | "
+                     f"{_ci(s, 'severity_mean')} | {_ci(s, 'tracking_rms_um_mean')} | {100 * s['diverged_rate']:.0f} % |")
+    oracle = ctrls.get("pid-oracle", {}).get("normalized_score")
+    if oracle and oracle.get("one_worse_than_zero"):
+        lines.append("\nOn this task pid-oracle (the per-plant best fixed PID) costs more on average than pid-robust, "
+                     "so the score runs the other way: below 0 is better than pid-robust.")
+    lines += ["", "Vibration detail (pooled episodes):", "",
+              "| controller | severity median | p95 | first 0.1 s | rest | pump line | 10-100 Hz | zones A/B/C/D |",
+              "|---|---|---|---|---|---|---|---|"]
+    for name, s in ctrls.items():
+        z = s["iso_zones"]
+        lines.append(f"| {name} | {s['severity_median']:.3g} | {s['severity_p95']:.3g} | "
+                     f"{s.get('severity_start_mean', math.nan):.3g} | {s.get('severity_rest_mean', math.nan):.3g} | "
+                     f"{s.get('pump_line_mean', math.nan):.3g} | {s.get('low_band_mean', math.nan):.3g} | "
+                     f"{z['A']}/{z['B']}/{z['C']}/{z['D']} |")
+    spread = {n: s["per_seed"] for n, s in ctrls.items() if len(s.get("per_seed", [])) > 1}
+    if spread:
+        lines += ["", "Spread over training seeds (mean cost / CVaR-20 of each seed on the same plants):", "",
+                  "| agent | per seed | range of the means |", "|---|---|---|"]
+        for name, per in spread.items():
+            cells = ", ".join(f"s{p['seed']}: {p['cost_mean']:.3g} / {p['cost_cvar20']:.3g}" for p in per)
+            means = [p["cost_mean"] for p in per]
+            lines.append(f"| {name} | {cells} | {min(means):.3g}-{max(means):.3g} |")
     est = {n: s for n, s in result["controllers"].items() if "c1_log_error_mean" in s}
     for name, s in est.items():
         lines.append(f"\n{name}: mean estimation error over the episodes |log10(estimate / true)|: c1 "
@@ -248,7 +294,7 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
 def _write_files(result: dict, out: Path) -> list[Path]:
     files = []
     buf = io.StringIO()
-    fields = ["controller", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
+    fields = ["controller", "agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
               "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
               "cost", "episode_return", "c1_log_error", "ct_log_error"]
     writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
@@ -260,11 +306,14 @@ def _write_files(result: dict, out: Path) -> list[Path]:
     files.append(write_text_atomic(out / "benchmark.md", format_table(result) + "\n"))
     files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
     files.append(_plot_plane(result, out / "severity_plane.png"))
+    if "pid-robust" in result["records"] and len(result["records"]) > 1:
+        files.append(_plot_paired_plane(result, out / "paired_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
     if result.get("task", "startup") == "startup":
-        files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png", result["seed"]))
+        files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
+                                  result["plants"][0]))
     else:
-        files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["seed"],
+        files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["plants"][0],
                                   scenario=None, task=result["task"]))
     return files
 
@@ -321,7 +370,7 @@ def _plot_plane(result: dict, path: Path) -> Path:
     all_sev = [r["severity_mm_s"] for recs in result["records"].values() for r in recs]
     norm = LogNorm(vmin=max(min(all_sev), 1e-2), vmax=max(all_sev))
     for ax, name in zip(axes.flat, names):
-        recs = result["records"][name]
+        recs = _by_seed(result["records"][name])[0]  # an agent's lowest seed
         sc = ax.scatter([r["Ct"] for r in recs], [r["c1"] for r in recs], c=[r["severity_mm_s"] for r in recs],
                         norm=norm, cmap="magma_r", s=40, edgecolors="k", linewidths=0.3)
         for r in recs:
@@ -334,6 +383,46 @@ def _plot_plane(result: dict, path: Path) -> Path:
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.6)
+    return save_figure(fig, path, dpi=100)
+
+
+def _plot_paired_plane(result: dict, path: Path) -> Path:
+    """Per plant, each controller's cost relative to pid-robust's on that plant (mean over an
+    agent's seeds), over the (Ct, c1) plane: where learning or adaptation helps and where not."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import TwoSlopeNorm
+
+    ref = {r["seed"]: r for r in result["records"]["pid-robust"]}
+    names = [n for n in result["records"] if n != "pid-robust"]
+    cols = min(3, len(names))
+    rows = math.ceil(len(names) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 4.2 * rows), squeeze=False, layout="constrained")
+    diffs = {}
+    for name in names:
+        per_plant: dict = {}
+        for r in result["records"][name]:
+            per_plant.setdefault(r["seed"], []).append(r["cost"])
+        diffs[name] = {k: 100 * (np.mean(v) / ref[k]["cost"] - 1) for k, v in per_plant.items()}
+    lim = max(5.0, float(np.percentile(np.abs(np.concatenate([list(d.values()) for d in diffs.values()])), 95)))
+    norm = TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim)
+    for ax, name in zip(axes.flat, names):
+        keys = list(diffs[name])
+        sc = ax.scatter([ref[k]["Ct"] for k in keys], [ref[k]["c1"] for k in keys], c=[diffs[name][k] for k in keys],
+                        norm=norm, cmap="RdBu_r", s=28, edgecolors="k", linewidths=0.2)
+        pr = result["controllers"][name].get("paired_vs_pid_robust", {})
+        ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
+               title=f"{name} ({result['controllers'][name]['n_seeds']} seed(s))\nmean "
+                     f"{100 * pr.get('cost_diff_rel', math.nan):+.1f} %, better on "
+                     f"{100 * pr.get('p_improvement', math.nan):.0f} % of episodes")
+        ax.title.set_fontsize(9)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    fig.colorbar(sc, ax=axes, label="cost vs pid-robust on the plant (%, blue = cheaper)", shrink=0.6)
+    fig.suptitle(f"Task {result['task']}: paired cost difference to pid-robust per held-out plant "
+                 "(c1, Ct at the episode start)", fontsize=10)
     return save_figure(fig, path, dpi=100)
 
 
@@ -360,10 +449,13 @@ def benchmark_from_cli(args) -> int:
 
     check_output(args.json, "--json")
     check_output(args.out, "--out", folder=True)
-    if args.episodes < 1:
+    if args.episodes is not None and args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes} is invalid: at least 1")
+    if args.seed < 0:
+        raise ValueError(f"--seed {args.seed} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
-                           scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray)
+                           scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray,
+                           all_seeds=args.all_seeds)
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

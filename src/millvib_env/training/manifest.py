@@ -30,10 +30,11 @@ def write_manifest(root: Path | None = None) -> Path:
     """(Re)write the manifest over every agent folder under `root` (default: agents/)."""
     root = Path(root or agents_dir())
     lines = []
-    for folder in sorted(p for p in root.iterdir() if (p / "card.json").exists()):
+    for card in sorted(root.glob("*/card.json")) + sorted(root.glob("*/seed-*/card.json")):
+        folder = card.parent
         for name in AGENT_FILES:
             if (folder / name).exists():
-                lines.append(f"{_sha256(folder / name)}  {folder.name}/{name}")
+                lines.append(f"{_sha256(folder / name)}  {folder.relative_to(root).as_posix()}/{name}")
     return write_text_atomic(root / MANIFEST, "\n".join(lines) + "\n")
 
 
@@ -42,8 +43,9 @@ def verify_agent(folder: Path) -> bool:
     (and intact), False if it lies elsewhere; ValueError if a shipped file is missing or changed."""
     root = Path(agents_dir()).resolve()
     folder = Path(folder).resolve()
-    if folder.parent != root:
-        return False
+    if root not in folder.parents or len(folder.relative_to(root).parts) > 2:
+        return False  # not under agents/ (an agent, or a seed-<s> folder of one)
+    rel = folder.relative_to(root).as_posix()
     manifest = root / MANIFEST
     if not manifest.is_file():
         raise ValueError(f"{manifest} is missing: the shipped agents cannot be verified")
@@ -51,7 +53,7 @@ def verify_agent(folder: Path) -> bool:
     for line in manifest.read_text().splitlines():
         digest, _, name = line.partition("  ")
         entries[name] = digest
-    listed = [name for name in entries if name.split("/")[0] == folder.name]
+    listed = [name for name in entries if name.rsplit("/", 1)[0] == rel]
     if not listed:
         raise ValueError(f"{folder} is not in {manifest}: regenerate it with `python scripts/agents_manifest.py` "
                          "after adding an agent")
