@@ -22,13 +22,22 @@ def test_every_task_has_disjoint_seed_ranges():
     assert get_task("default") is get_task("startup")
 
 
-def test_benchmark_refuses_seeds_outside_the_held_out_range():
-    from millvib_env.training.benchmark import run_benchmark
-
+def test_held_out_plants_are_drawn_inside_the_held_out_range_and_overlap_is_refused():
+    for name in list_tasks():
+        t = get_task(name)
+        plants = t.heldout_plants(200, seed=0)
+        assert len(set(plants)) == 200 and all(t.purpose_of(p) == "heldout" for p in plants)
+        assert plants == t.heldout_plants(200, seed=0)
+        other = t.heldout_plants(200, seed=1)
+        assert len(set(plants) & set(other)) < 10  # a new seed draws new plants, not a shifted range
     with pytest.raises(ValueError, match="not a held-out plant.*tuning"):
-        run_benchmark(["pid-paper"], task="startup", seed=10_000, episodes=2, progress=False)
-    with pytest.raises(ValueError, match="held-out"):
-        run_benchmark(["pid-paper"], task="rolling", seed=20_000, episodes=2, progress=False)
+        get_task("startup").check_heldout([10_000])
+    with pytest.raises(ValueError, match="not a held-out plant.*training"):
+        get_task("rolling").check_heldout([100_005])
+    with pytest.raises(ValueError, match="seed -1 is invalid"):
+        get_task("startup").heldout_plants(5, seed=-1)
+    with pytest.raises(ValueError, match="episodes 0 is invalid"):
+        get_task("startup").heldout_plants(0)
 
 
 @pytest.mark.parametrize("pulse", [0.0, 0.12])

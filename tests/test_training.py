@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 
 from millvib_env.cli import main as cli_main
-from millvib_env.control.policies import FixedGainPolicy, OraclePolicy, list_agents, load_controller
+from millvib_env.control.policies import FixedGainPolicy, OraclePolicy, agent_seeds, list_agents, load_controller
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.params import PIDGains
+from millvib_env.tasks import get_task
 from millvib_env.training.benchmark import public_json, run_benchmark
 from millvib_env.training.evaluate import run_episodes
 from millvib_env.training.train import train
@@ -92,7 +93,7 @@ def test_benchmark_cli_writes_json_and_outputs(tmp_path):
 
 @pytest.mark.parametrize("name", list_agents())
 def test_shipped_agents_load_and_run(name):
-    agent = load_controller(name)
+    agent = load_controller(name, seed=agent_seeds(name)[-1])
     assert {"algo", "env_id", "seed", "n_timesteps", "wall_time_s", "command"} <= set(agent.card)
     recs = run_episodes(agent, [20_000, 20_001])
     assert all(np.isfinite(r["cost"]) for r in recs)
@@ -113,7 +114,8 @@ def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
     with pytest.raises(ValueError, match="trained on task 'rolling'"):
         run_benchmark([str(tmp_path / "agent")], task="startup", episodes=1, progress=False)
     result = run_benchmark([str(tmp_path / "agent"), "pid-robust"], task="rolling", episodes=2, progress=False)
-    assert result["task"] == "rolling" and result["seed"] == 120_000
+    assert result["task"] == "rolling" and result["seed"] == 0
+    assert all(p in get_task("rolling").seeds["heldout"] for p in result["plants"])
 
 
 def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
@@ -125,8 +127,13 @@ def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
                         log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2, checkpoint_freq=128)
     assert [c["seed"] for c in cards] == [4, 5]
     for s in (4, 5):
-        assert (tmp_path / f"agent-s{s}" / "card.json").exists()
+        assert (tmp_path / "agent" / f"seed-{s}" / "card.json").exists()
         assert (tmp_path / "runs" / f"ppo_MillVib-GainSchedule-v0_s{s}" / "card.json").exists()
+    assert agent_seeds(str(tmp_path / "agent")) == [4, 5]
+    two = load_controller(str(tmp_path / "agent"), seed=5)
+    assert two.seed == 5 and two.name == "agent"
+    with pytest.raises(ValueError, match="no training seed 6"):
+        load_controller(str(tmp_path / "agent"), seed=6)
     with pytest.raises(ValueError, match="training seed 60"):
         train_seeds([60], algo="ppo", config=str(cfg))
 

@@ -16,6 +16,7 @@ them: with 3-5 seeds a bootstrap over seeds says little.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Callable, Sequence
 
 import numpy as np
@@ -81,8 +82,14 @@ def interval(samples_per_seed: Sequence[Sequence[float]], statistic: Callable = 
         value = statistic(np.concatenate(samples)) if sum(s.size for s in samples) else math.nan
         return [float(value), float(value)]
     method = "percentile" if statistic is worst else "BCa"
-    res = stats.bootstrap(tuple(samples), _pooled(statistic), method=method,
-                          rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
+    with warnings.catch_warnings():  # degenerate resamples: the point value below
+        warnings.simplefilter("ignore")
+        res = stats.bootstrap(tuple(samples), _pooled(statistic), method=method,
+                              rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
+    lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        value = float(statistic(np.concatenate(samples)))
+        return [value, value]
     return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
 
 
@@ -91,8 +98,10 @@ def _paired(statistic: Callable, samples: Sequence[np.ndarray], point: float) ->
 
     if not (_usable(samples) and all(s.size == samples[0].size for s in samples)):
         return [point, point]
-    res = stats.bootstrap(tuple(samples), statistic, paired=True, vectorized=True, method="BCa",
-                          rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
+    with warnings.catch_warnings():  # a constant statistic (e.g. the reference against itself): no BCa
+        warnings.simplefilter("ignore")
+        res = stats.bootstrap(tuple(samples), statistic, paired=True, vectorized=True, method="BCa",
+                              rng=np.random.default_rng(BOOTSTRAP_SEED), **BOOTSTRAP)
     lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
     return [point, point] if not (np.isfinite(lo) and np.isfinite(hi)) else [lo, hi]
 
@@ -105,7 +114,7 @@ def paired_difference(costs_per_seed: Sequence[Sequence[float]], reference: Sequ
     a = [np.asarray(s, float) for s in costs_per_seed]
     b = np.asarray(reference, float)
     if any(s.shape != b.shape for s in a):
-        raise ValueError("paired_difference: every seed's episodes must be the reference's plants")
+        raise ValueError("paired_difference: every seed's episodes must be on the same plants as the reference's")
     k = len(a)
 
     def ratio(*xs, axis=-1):

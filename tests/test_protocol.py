@@ -1,0 +1,111 @@
+"""The evaluation protocol: statistics with known answers, the JSON schema, multi-seed agents, determinism."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from millvib_env._paths import agents_dir
+from millvib_env.cli import main as cli_main
+from millvib_env.control.policies import agent_seeds, list_agents
+from millvib_env.training.benchmark import public_json, run_benchmark
+from millvib_env.training.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
+
+#: per controller, what `millvib benchmark --json` promises (README, "Benchmark JSON")
+METRICS = ("cost_mean", "cost_iqm", "cost_cvar20", "cost_worst", "severity_mean", "tracking_rms_um_mean")
+SCHEMA = set(METRICS) | {f"{m}_ci" for m in METRICS} | {"diverged_rate", "n_seeds", "episodes"}
+
+
+def test_cvar_iqm_and_worst_of_known_samples():
+    x = np.arange(1.0, 11.0)  # 1..10
+    assert cvar(x) == pytest.approx(9.5)  # the worst 20 %: 10 and 9
+    assert cvar(x, 0.05) == 10.0  # at least one episode
+    assert iqm(np.arange(8.0)) == pytest.approx(3.5)  # mean of 2, 3, 4, 5
+    assert iqm([1, 1, 1, 1, 1, 1, 100, -100]) == pytest.approx(1.0)  # outliers trimmed
+    assert worst(x) == 10.0
+
+
+def test_the_interval_covers_the_true_mean_at_about_its_level():
+    rng = np.random.default_rng(7)
+    hits = 0
+    for _ in range(60):
+        samples = [rng.lognormal(0.0, 0.5, 40) for _ in range(3)]  # three seeds, 40 plants each
+        lo, hi = interval(samples)
+        hits += lo <= np.exp(0.125) <= hi  # E[lognormal(0, 0.5)]
+        assert lo <= np.mean(np.concatenate(samples)) <= hi
+    assert hits >= 51  # 95 % nominal: 60 trials, P(hits < 51) ~ 0.3 %
+
+
+def test_intervals_are_seeded_and_degenerate_samples_give_a_point():
+    x = [np.random.default_rng(1).normal(5, 1, 30)]
+    assert interval(x) == interval(x)
+    assert interval([[2.0, 2.0, 2.0, 2.0]]) == [2.0, 2.0]
+    lo, hi = interval(x, cvar)
+    assert lo <= cvar(x[0]) <= hi
+
+
+def test_paired_difference_and_score_of_a_known_case():
+    ref = np.linspace(1.0, 2.0, 50)
+    better = [0.9 * ref, 0.8 * ref]  # two seeds: 10 % and 20 % cheaper on every plant
+    pd = paired_difference(better, ref)
+    assert pd["cost_diff_rel"] == pytest.approx(-0.15)
+    assert pd["ci"][0] < -0.15 < pd["ci"][1] < 0 and pd["p_improvement"] == 1.0
+    oracle = 0.85 * ref
+    ns = normalized_score(better, ref, oracle)
+    assert ns["score"] == pytest.approx(1.0) and not ns["one_worse_than_zero"]
+    assert normalized_score([ref], ref, oracle)["score"] == pytest.approx(0.0)
+    assert normalized_score([ref], ref, 1.1 * ref)["one_worse_than_zero"]
+    with pytest.raises(ValueError, match="same plants"):
+        paired_difference([ref[:10]], ref)
+
+
+def test_the_json_schema_and_the_comparisons(tmp_path):
+    out = tmp_path / "bench.json"
+    rc = cli_main(["benchmark", "--task", "rolling", "--controllers", "pid-robust", "pid-oracle", "pid-paper",
+                   "--episodes", "6", "--quiet", "--json", str(out), "--seed", "3"])
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert {"controllers", "task", "seed", "episodes", "env_id", "plants", "all_seeds"} <= set(data)
+    assert data["seed"] == 3 and data["episodes"] == 6 and len(data["plants"]) == 6
+    for name, s in data["controllers"].items():
+        assert SCHEMA <= set(s), name
+        assert s["n_seeds"] == 1 and s["episodes"] == 6
+        for m in METRICS:
+            lo, hi = s[f"{m}_ci"]
+            assert lo <= s[m] <= hi or lo == hi == s[m], (name, m)
+    pr = data["controllers"]["pid-paper"]["paired_vs_pid_robust"]
+    assert set(pr) == {"cost_diff_rel", "ci", "p_improvement"} and len(pr["ci"]) == 2
+    assert "paired_vs_pid_robust" not in data["controllers"]["pid-robust"]
+    assert data["controllers"]["pid-oracle"]["normalized_score"]["score"] == pytest.approx(1.0)
+    assert data["controllers"]["pid-robust"]["normalized_score"]["score"] == pytest.approx(0.0)
+
+
+def test_the_same_seed_gives_the_same_json_bytes(tmp_path):
+    args = ["benchmark", "--task", "change", "--controllers", "pid-robust", "pid-nominal", "--episodes", "4",
+            "--quiet"]
+    for name in ("a", "b"):
+        assert cli_main(args + ["--json", str(tmp_path / f"{name}.json")]) == 0
+    assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    assert cli_main(args + ["--seed", "1", "--json", str(tmp_path / "c.json")]) == 0
+    a, c = (json.loads((tmp_path / f"{n}.json").read_text()) for n in "ac")
+    assert not set(a["plants"]) & set(c["plants"])
+
+
+def test_all_seeds_pools_every_training_seed_of_an_agent(tmp_path):
+    two = [n for n in list_agents("startup") if len(agent_seeds(n)) >= 2]
+    if not two:
+        pytest.skip("no shipped startup agent has two seeds")
+    src = agents_dir() / two[0]
+    agent = tmp_path / "agent"
+    for s in agent_seeds(two[0])[:2]:
+        shutil.copytree(src / f"seed-{s}", agent / f"seed-{s}")
+    kw = dict(task="startup", episodes=4, progress=False, scenarios=False)
+    quick = run_benchmark(["pid-robust", str(agent)], **kw)
+    full = run_benchmark(["pid-robust", str(agent)], all_seeds=True, **kw)
+    assert quick["controllers"][str(agent)]["n_seeds"] == 1
+    s = full["controllers"][str(agent)]
+    assert s["n_seeds"] == 2 and s["episodes"] == 4 and len(full["records"][str(agent)]) == 8
+    assert [p["seed"] for p in s["per_seed"]] == agent_seeds(two[0])[:2]
+    first = [r["cost"] for r in full["records"][str(agent)] if r["agent_seed"] == s["per_seed"][0]["seed"]]
+    assert first == [r["cost"] for r in quick["records"][str(agent)]]
+    assert public_json(full)["all_seeds"] is True
