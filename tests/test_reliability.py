@@ -82,7 +82,8 @@ def test_a_batch_too_large_for_memory_is_refused_before_allocating():
     (["benchmark", "--episodes", "0"], "--episodes"),
     (["benchmark", "--task", "nope"], "task 'nope'"),
     (["benchmark", "--controllers", "no-such-agent"], "no-such-agent"),
-    (["benchmark", "--seed", "10"], "held-out"),
+    (["benchmark", "--seed", "-1"], "--seed"),
+    (["benchmark", "--episodes", "abc"], "--episodes"),
     (["benchmark", "--json", "/proc/version/x.json"], "--json"),
     (["train", "--algo", "ppo", "--n-timesteps", "0"], "--n-timesteps"),
     (["train", "--algo", "ppo", "--task", "rolling", "--seed", "99"], "training seed 99"),
@@ -90,9 +91,56 @@ def test_a_batch_too_large_for_memory_is_refused_before_allocating():
     (["simulate", "--set", "c1=-1"], "c1"),
 ])
 def test_bad_cli_input_exits_2_with_one_line(argv, match, capsys):
-    assert cli_main(argv + ["--quiet"] if argv[0] in ("benchmark", "train") else argv) == 2
+    assert _exit_status(argv + ["--quiet"] if argv[0] in ("benchmark", "train") else argv) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and match in err
+
+
+def _exit_status(argv) -> int:
+    try:
+        return cli_main(argv)
+    except SystemExit as exc:  # argparse's own refusals
+        return exc.code
+
+
+#: flag values a user may mistype: numbers out of range, not numbers, empty, paths that cannot be written
+BAD_OR_ODD = ["0", "-1", "2", "1e9", "3.5", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "rolling",
+              "change", "pid-paper", "ppo-gain", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1"]
+FUZZ_FLAGS = {
+    # benchmark: a valid draw runs pid-paper on 2 plants; train: --n-timesteps is always invalid, so no run trains
+    "benchmark": (["--controllers", "pid-paper", "--no-scenarios", "--episodes", "2", "--quiet"],
+                  ["--task", "--episodes", "--seed", "--controllers", "--json", "--out", "--env"]),
+    "train": (["--algo", "ppo", "--quiet"], ["--algo", "--task", "--seed", "--jobs", "--eval-freq", "--env",
+                                              "--n-eval-episodes", "--checkpoint-freq", "--config", "--save-dir"]),
+    "simulate": (["--t-end", "0.05"], ["--set", "--kp", "--ki", "--kd", "--t-end", "--x0", "--preset", "--method",
+                                       "--csv"]),
+    "sweep": (["--controllers", "pid-paper", "--plants", "2", "--quiet"],
+              ["--plants", "--params", "--task", "--seed", "--jobs", "--controllers"]),
+}
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                  HealthCheck.function_scoped_fixture])
+@given(command=st.sampled_from(sorted(FUZZ_FLAGS)), data=st.data())
+def test_fuzzed_cli_arguments_exit_0_or_2_with_one_line(command, data, tmp_path_factory, capsys):
+    base, flags = FUZZ_FLAGS[command]
+    chosen = data.draw(st.lists(st.tuples(st.sampled_from(flags), st.sampled_from(BAD_OR_ODD)), min_size=1,
+                                max_size=3))
+    argv = [command, *base]
+    for flag, value in chosen:
+        argv += [flag, value]
+    if command == "train":
+        argv += ["--n-timesteps", data.draw(st.sampled_from(["0", "-3", "abc", "nan", ""]))]
+    if command == "sweep":
+        argv += ["--out", str(tmp_path_factory.mktemp("sweep") / "out")]
+    capsys.readouterr()
+    status = _exit_status(argv)
+    out = capsys.readouterr()
+    assert status in (0, 2), (argv, out.err)
+    assert "Traceback" not in out.err + out.out
+    if status == 2:
+        lines = out.err.strip().splitlines()
+        assert len(lines) == 1 and "error" in lines[0], (argv, out.err)
 
 
 def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):

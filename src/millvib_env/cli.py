@@ -213,8 +213,15 @@ def _cmd_benchmark(args) -> int:
     return benchmark_from_cli(args)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (the flag, the value, what is allowed) and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="millvib", description=DESCRIPTION,
+    parser = _Parser(prog="millvib", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     from millvib_env import __version__
 
