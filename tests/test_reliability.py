@@ -150,7 +150,7 @@ def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
     from millvib_env.control.policies import load_controller
 
     folder = tmp_path / "agent"
-    shutil.copytree(agents_dir() / "ppo-gain", folder)
+    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", folder)
     (folder / "vecnormalize.npz").unlink()
     with pytest.raises(ValueError, match="vecnormalize.npz is missing"):
         load_controller(str(folder))
@@ -171,10 +171,14 @@ def test_a_changed_shipped_agent_fails_its_checksum(tmp_path, monkeypatch):
     root = tmp_path / "agents"
     shutil.copytree(agents_dir(), root)
     monkeypatch.setenv("MILLVIB_AGENTS", str(root))
-    card = root / "ppo-gain" / "card.json"
+    card = root / "ppo-gain" / "seed-0" / "card.json"
     card.write_text(card.read_text().replace('"seed": 0', '"seed": 1'))
     with pytest.raises(ValueError, match="does not match its checksum"):
         load_controller("ppo-gain")
+    (root / "ppo-gain" / "seed-0" / "card.json").unlink()
+    shutil.copytree(root / "ppo-gain" / "seed-1", root / "ppo-gain" / "seed-9")
+    with pytest.raises(ValueError, match="seed-9 is not in"):
+        load_controller("ppo-gain", seed=9)  # an unlisted seed folder is not loaded silently
 
 
 def test_import_and_help_work_whatever_the_config_files(tmp_path):
