@@ -24,10 +24,14 @@ def test_a_sweep_on_ray_equals_the_local_run(local_cluster):
 
 
 def test_a_benchmark_on_ray_equals_the_local_run(local_cluster):
-    kw = dict(task="rolling", episodes=3, progress=False)
-    local = public_json(run_benchmark(["pid-paper", "pid-robust"], **kw))
-    remote = public_json(run_benchmark(["pid-paper", "pid-robust"], ray=local_cluster, **kw))
+    from millvib_env.control.policies import agent_seeds, list_agents
+
+    agents = [n for n in list_agents("rolling") if len(agent_seeds(n)) >= 2][:1]
+    kw = dict(task="rolling", episodes=3, progress=False, all_seeds=True)
+    local = public_json(run_benchmark(["pid-paper", "pid-robust", *agents], **kw))
+    remote = public_json(run_benchmark(["pid-paper", "pid-robust", *agents], ray=local_cluster, **kw))
     assert local == remote
+    assert all(local["controllers"][a]["n_seeds"] >= 2 for a in agents)
 
 
 def test_seeds_train_as_ray_tasks_and_match_local_training(local_cluster, tmp_path):
