@@ -1,5 +1,6 @@
 """User errors end in one clear line; nothing silently wrong (issue: reliability)."""
 import json
+import os
 import math
 import subprocess
 import sys
@@ -134,7 +135,12 @@ def test_fuzzed_cli_arguments_exit_0_or_2_with_one_line(command, data, tmp_path_
     if command == "sweep":
         argv += ["--out", str(tmp_path_factory.mktemp("sweep") / "out")]
     capsys.readouterr()
-    status = _exit_status(argv)
+    here = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))  # relative output paths land in a temporary folder
+    try:
+        status = _exit_status(argv)
+    finally:
+        os.chdir(here)
     out = capsys.readouterr()
     assert status in (0, 2), (argv, out.err)
     assert "Traceback" not in out.err + out.out
