@@ -20,6 +20,7 @@ The gains of the baselines and how they were found live in configs/control/<task
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -267,6 +268,10 @@ def baseline_names() -> list[str]:
     return list(BASELINES)
 
 
+#: the folder of training seed s of a multi-seed agent: <agent>/seed-<s>/
+SEED_FOLDER = re.compile(r"seed-(\d+)")
+
+
 def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
     """The seeds of an agent folder: {seed: folder} for a single agent (card.json in the folder), or
     one entry per `seed-<s>/` subfolder of a multi-seed agent (`millvib train --seeds`), by seed."""
@@ -279,8 +284,9 @@ def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
         return {seed: folder}
     found = {}
     for p in folder.glob("seed-*"):
-        if p.is_dir() and p.name[5:].isdigit() and (p / "card.json").exists():
-            found[int(p.name[5:])] = p
+        m = SEED_FOLDER.fullmatch(p.name)
+        if m and p.is_dir() and (p / "card.json").exists():
+            found[int(m.group(1))] = p
     return dict(sorted(found.items()))
 
 

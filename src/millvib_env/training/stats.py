@@ -90,7 +90,7 @@ def interval(samples_per_seed: Sequence[Sequence[float]], statistic: Callable = 
     if not (np.isfinite(lo) and np.isfinite(hi)):
         value = float(statistic(np.concatenate(samples)))
         return [value, value]
-    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+    return [lo, hi]
 
 
 def _paired(statistic: Callable, samples: Sequence[np.ndarray], point: float) -> list[float]:

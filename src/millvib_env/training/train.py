@@ -17,7 +17,6 @@ never trained on.
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import sys
 import time
@@ -95,10 +94,6 @@ def _continue_evaluations(callback, log_path: Path) -> None:
         callback.evaluations_length = [list(r) for r in data["ep_lengths"]]
     if callback.evaluations_results:
         callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
-
-
-#: a seed of a multi-seed agent lives in <agent>/seed-<s>/
-_SEED_FOLDER = re.compile(r"seed-\d+")
 
 
 def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", **kwargs) -> dict:
@@ -192,7 +187,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
         from millvib_env._paths import atomic_folder
 
         dest = Path(save_dir)
-        card["name"] = dest.parent.name if _SEED_FOLDER.fullmatch(dest.name) else dest.name
+        from millvib_env.control.policies import SEED_FOLDER
+
+        card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
         with atomic_folder(dest) as tmp:
             for name in ("model.zip", "vecnormalize.npz"):
                 if (run / name).exists():
