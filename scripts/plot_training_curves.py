@@ -3,8 +3,10 @@ the evidence behind a card's note that fewer steps were enough.
 
     python scripts/plot_training_curves.py [--runs runs] [--out docs/agents/training_curves.png]
 
-Reads LOG_DIR/<algo>_<env>[_<task>]_s<seed>/eval/evaluations.npz as `millvib train` writes it
-(the runs are not shipped; this plots the ones on this machine). The mean evaluation reward over
+Reads each seed's shipped curve (agents/<name>/seed-<s>/evaluations.npz, which `millvib train
+--save-dir` writes), else its run folder LOG_DIR/<algo>_<env>[_<task>]_s<seed>/eval/evaluations.npz
+(runs are not shipped: seeds trained before the curve was shipped are drawn only where their run
+folder is on this machine). The mean evaluation reward over
 8 plants is noisy: a running median over 10 evaluations is drawn.
 """
 import argparse
@@ -15,6 +17,7 @@ import numpy as np
 
 from millvib_env._paths import agents_dir, save_figure
 from millvib_env.control.policies import agent_seed_folders, list_agents
+from millvib_env.training.train import EVAL_CURVE
 
 
 def run_folder(runs: Path, card: dict) -> Path:
@@ -45,7 +48,8 @@ def main() -> None:
         for seed, folder in agent_seed_folders(agents_dir() / name).items():
             card = json.loads((folder / "card.json").read_text())
             try:
-                ev = np.load(run_folder(Path(args.runs), card) / "eval" / "evaluations.npz")
+                shipped = folder / EVAL_CURVE
+                ev = np.load(shipped if shipped.is_file() else run_folder(Path(args.runs), card) / "eval" / EVAL_CURVE)
             except (FileNotFoundError, OSError):
                 continue
             r = ev["results"].mean(axis=1)

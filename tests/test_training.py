@@ -62,7 +62,7 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo):
               checkpoint_freq=128, progress=False)
     card = train(algo, seed=3, save_dir=str(tmp_path / "agent"), **kw)
     assert card["n_timesteps"] >= 256 and card["seed"] == 3
-    for name in ("model.zip", "vecnormalize.npz", "card.json"):
+    for name in ("model.zip", "vecnormalize.npz", "card.json", "evaluations.npz"):  # the curve too
         assert (tmp_path / "agent" / name).exists()
     agent = load_controller(str(tmp_path / "agent"))
     recs = run_episodes(agent, [0, 1])

@@ -7,8 +7,8 @@ validation plant; each seed fixes the plant (c1, Ct), the disturbances and the s
 in both environment modes, so gain schedulers, valve policies and fixed PIDs meet the same plants.
 Agents run with their lowest training seed, or with every seed they ship (`--all-seeds`, the full
 protocol). Per controller: cost mean, IQM, CVaR-20, worst episode, severity and tracking means with
-95 % intervals (`millvib_env.training.stats`), diverged rate, the paired difference to `pid-robust`
-with the probability of improvement, the normalised score (0 = pid-robust, 1 = pid-oracle), the
+95 % intervals (`millvib_env.training.stats`), diverged rate, the paired differences to `pid-robust`
+(mean and CVaR-20 cost) with the probability of improvement, the normalised score (0 = pid-robust, 1 = pid-oracle), the
 spread over training seeds, and the vibration detail (severity quantiles, its start and the rest,
 the pump line, the 10-100 Hz band, ISO zones). Cost = severity / 4.5 mm/s + tracking RMS / 10 um.
 """
@@ -222,18 +222,20 @@ def format_table(result: dict) -> str:
              "CVaR-20 = mean of the worst 20 %; [95 % bootstrap intervals: plants resampled within each training "
              "seed; paired to pid-robust on the same plants]; score: 0 = pid-robust, 1 = pid-oracle",
              "",
-             "| controller | seeds | cost mean | cost IQM | cost CVaR-20 | worst episode | vs pid-robust | P(better) | "
-             "score | severity (mm/s) | tracking RMS (um) | diverged |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| controller | seeds | cost mean | cost IQM | cost CVaR-20 | worst episode | vs pid-robust | "
+             "CVaR-20 vs pid-robust | P(better) | score | severity (mm/s) | tracking RMS (um) | diverged |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in ctrls.items():
         pr = s.get("paired_vs_pid_robust")
         vs = (f"{100 * pr['cost_diff_rel']:+.1f} % [{100 * pr['ci'][0]:+.1f}, {100 * pr['ci'][1]:+.1f}]" if pr
               else "-")
+        vs_cvar = (f"{100 * pr['cvar20_diff_rel']:+.1f} % [{100 * pr['cvar20_ci'][0]:+.1f}, "
+                   f"{100 * pr['cvar20_ci'][1]:+.1f}]" if pr else "-")
         pb = f"{pr['p_improvement']:.2f}" if pr else "-"
         ns = s.get("normalized_score")
         sc = f"{ns['score']:+.2f} [{ns['ci'][0]:+.2f}, {ns['ci'][1]:+.2f}]" if ns and name != "pid-robust" else "-"
         lines.append(f"| {name} | {s['n_seeds']} | {_ci(s, 'cost_mean')} | {_ci(s, 'cost_iqm')} | "
-                     f"{_ci(s, 'cost_cvar20')} | {_ci(s, 'cost_worst')} | {vs} | {pb} | {sc} | "
+                     f"{_ci(s, 'cost_cvar20')} | {_ci(s, 'cost_worst')} | {vs} | {vs_cvar} | {pb} | {sc} | "
                      f"{_ci(s, 'severity_mean')} | {_ci(s, 'tracking_rms_um_mean')} | {100 * s['diverged_rate']:.0f} % |")
     oracle = ctrls.get("pid-oracle", {}).get("normalized_score")
     if oracle and oracle.get("one_worse_than_zero"):

@@ -15,7 +15,7 @@ from millvib_env._paths import agents_dir, write_text_atomic
 __all__ = ["MANIFEST", "AGENT_FILES", "write_manifest", "verify_agent"]
 
 MANIFEST = "MANIFEST.sha256"
-AGENT_FILES = ("model.zip", "vecnormalize.npz", "card.json")
+AGENT_FILES = ("model.zip", "vecnormalize.npz", "card.json", "evaluations.npz")
 
 
 def _sha256(path: Path) -> str:

@@ -6,7 +6,8 @@ data, never evaluated: `training.hyperparams`). A run folder LOG_DIR/<algo>_<env
 checkpoints (model and VecNormalize statistics), the best model by periodic evaluation, and at
 the end model.zip, vecnormalize.npz (the observation statistics as plain arrays, `normalization`;
 vecnormalize.pkl beside it in the run folder for SB3's resume) and card.json (command, seed, steps,
-wall time, evaluation).
+wall time, evaluation). `--save-dir` receives the model, the statistics, the card and the
+evaluation curve (evaluations.npz, for scripts/plot_training_curves.py).
 
 Seeds come from the task (configs/tasks.yaml): training environments use the task's first
 training seed + 100 * seed + i, the evaluation environments 5000 further on; PID tuning, model
@@ -33,6 +34,7 @@ __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "ALGOS"
 ALGOS = ("ppo", "sac", "recurrentppo")
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
+EVAL_CURVE = "evaluations.npz"  # EvalCallback's curve, shipped beside the model (training-curve plots)
 
 
 def _algo_class(algo: str):
@@ -191,9 +193,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
 
         card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
         with atomic_folder(dest) as tmp:
-            for name in ("model.zip", "vecnormalize.npz"):
-                if (run / name).exists():
-                    shutil.copyfile(run / name, tmp / name)
+            for src in (run / "model.zip", run / "vecnormalize.npz", run / "eval" / EVAL_CURVE):
+                if src.exists():
+                    shutil.copyfile(src, tmp / src.name)
             write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
     venv.close()
     eval_env.close()
