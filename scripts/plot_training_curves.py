@@ -6,8 +6,8 @@ the evidence behind a card's note that fewer steps were enough.
 Reads each seed's shipped curve (agents/<name>/seed-<s>/evaluations.npz, which `millvib train
 --save-dir` writes), else its run folder LOG_DIR/<algo>_<env>[_<task>]_s<seed>/eval/evaluations.npz
 (runs are not shipped: seeds trained before the curve was shipped are drawn only where their run
-folder is on this machine). The mean evaluation reward over
-8 plants is noisy: a running median over 10 evaluations is drawn.
+folder is on this machine). The mean evaluation reward over 8 plants is noisy: a running median
+over 10 evaluations is drawn.
 """
 import argparse
 import json
@@ -17,14 +17,14 @@ import numpy as np
 
 from millvib_env._paths import agents_dir, save_figure
 from millvib_env.control.policies import agent_seed_folders, list_agents
-from millvib_env.training.train import EVAL_CURVE
+from millvib_env.training.manifest import EVAL_CURVE
 
 
 def run_folder(runs: Path, card: dict) -> Path:
     task = card.get("task", "startup")
     stem = f"{card['algo']}_{card['env_id']}" + ("" if task == "startup" else f"_{task}") + f"_s{card['seed']}"
     for parent in [runs] + sorted(p for p in runs.iterdir() if p.is_dir()):
-        if (parent / stem / "eval" / "evaluations.npz").exists():
+        if (parent / stem / "eval" / EVAL_CURVE).exists():
             if json.loads((parent / stem / "card.json").read_text()).get("env_kwargs") == card.get("env_kwargs"):
                 return parent / stem
     raise FileNotFoundError(stem)

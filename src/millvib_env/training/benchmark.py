@@ -8,9 +8,9 @@ in both environment modes, so gain schedulers, valve policies and fixed PIDs mee
 Agents run with their lowest training seed, or with every seed they ship (`--all-seeds`, the full
 protocol). Per controller: cost mean, IQM, CVaR-20, worst episode, severity and tracking means with
 95 % intervals (`millvib_env.training.stats`), diverged rate, the paired differences to `pid-robust`
-(mean and CVaR-20 cost) with the probability of improvement, the normalised score (0 = pid-robust, 1 = pid-oracle), the
-spread over training seeds, and the vibration detail (severity quantiles, its start and the rest,
-the pump line, the 10-100 Hz band, ISO zones). Cost = severity / 4.5 mm/s + tracking RMS / 10 um.
+(mean and CVaR-20 cost) with the probability of improvement, the normalised score (0 = pid-robust,
+1 = pid-oracle), the spread over training seeds, and the vibration detail (severity quantiles, its
+start and the rest, the pump line, the 10-100 Hz band, ISO zones). Cost = severity / 4.5 mm/s + tracking RMS / 10 um.
 """
 
 from __future__ import annotations

@@ -12,10 +12,12 @@ from pathlib import Path
 
 from millvib_env._paths import agents_dir, write_text_atomic
 
-__all__ = ["MANIFEST", "AGENT_FILES", "write_manifest", "verify_agent"]
+__all__ = ["MANIFEST", "AGENT_FILES", "EVAL_CURVE", "write_manifest", "verify_agent"]
 
 MANIFEST = "MANIFEST.sha256"
-AGENT_FILES = ("model.zip", "vecnormalize.npz", "card.json", "evaluations.npz")
+#: EvalCallback's curve (SB3's file name), shipped beside the model for the training-curve plots
+EVAL_CURVE = "evaluations.npz"
+AGENT_FILES = ("model.zip", "vecnormalize.npz", "card.json", EVAL_CURVE)
 
 
 def _sha256(path: Path) -> str:

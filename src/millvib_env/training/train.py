@@ -28,13 +28,13 @@ import numpy as np
 
 from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
+from millvib_env.training.manifest import EVAL_CURVE
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
-EVAL_CURVE = "evaluations.npz"  # EvalCallback's curve, shipped beside the model (training-curve plots)
 
 
 def _algo_class(algo: str):
@@ -87,7 +87,7 @@ def _resume_from(cls, folder: Path, venv, normalized: bool, tb: str):
 def _continue_evaluations(callback, log_path: Path) -> None:
     """Give a resumed run's EvalCallback the earlier evaluations and best reward, so its history and
     best model continue instead of restarting."""
-    path = log_path / "evaluations.npz"
+    path = log_path / EVAL_CURVE
     if not path.is_file():
         return
     with np.load(path, allow_pickle=False) as data:
@@ -170,7 +170,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
 
         venv.save(str(run / "vecnormalize.pkl"))
         save_obs_stats(venv, run / STATS_FILE)
-    evals = np.load(run / "eval" / "evaluations.npz") if (run / "eval" / "evaluations.npz").exists() else None
+    evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
             "task": the_task.name, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
