@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from millvib_env._paths import write_text_atomic
+from millvib_env.tasks import list_tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,12 +36,19 @@ def results_block(md: str) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("tasks", nargs="*", default=["startup", "rolling", "change"])
+    ap.add_argument("tasks", nargs="*", metavar="TASK",
+                    help=f"tasks to copy ({', '.join(list_tasks())}; default all)")
     args = ap.parse_args()
     readme = ROOT / "README.md"
     lines = readme.read_text().splitlines()
     for task in args.tasks:
-        md = (ROOT / "docs" / "benchmark" / task / "benchmark.md").read_text()
+        if task not in list_tasks():
+            ap.error(f"task {task!r} is not one of {', '.join(list_tasks())}")
+    for task in args.tasks or list_tasks():
+        source = ROOT / "docs" / "benchmark" / task / "benchmark.md"
+        if not source.is_file():
+            ap.error(f"{source} is missing: run `millvib benchmark --task {task} --all-seeds --out {source.parent}` first")
+        md = source.read_text()
         head = next(i for i, x in enumerate(lines) if x.startswith(f"#### {task}:"))
         start = next(i for i in range(head, len(lines)) if lines[i].startswith("| controller | seeds |"))
         stop = next(i for i in range(start, len(lines)) if lines[i].startswith("![paired"))
