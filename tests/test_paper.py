@@ -35,15 +35,17 @@ def test_the_studies_match_the_paper_setup():
     assert [c.gains.kp for c in PAPER_STUDIES[2].cases] == [1e5, 3.5e6, 3.9e6]
 
 
-def test_ode45_default_tolerances_sustain_a_vibration_the_converged_solution_does_not_have():
-    # the paper's KP = 3.9e6 case: quasi-periodic under ode45's RelTol 1e-3 / AbsTol 1e-6, a decay
-    # once converged (README, "The paper's solver")
+def test_ode45_default_tolerances_leave_a_tail_orders_above_the_converged_one_that_shrinks_with_the_tolerance():
+    # the paper's KP = 3.9e6 case. Only amplitudes are asserted: whether the loose-tolerance tail is
+    # classed "decay" or "quasi-periodic" depends on the processor's rounding (README, "The paper's solver")
     from millvib_env.analysis.solver_study import SOLVERS, run_solver_study, verdicts
 
     kp_study = PAPER_STUDIES[2]
-    rows, _ = run_solver_study(1.0, solvers=(SOLVERS[0], SOLVERS[-1]), progress=False, keep_runs=False,
+    tight = next(s for s in SOLVERS if s.name == "RK45 1e-6")
+    rows, _ = run_solver_study(1.0, solvers=(SOLVERS[0], tight, SOLVERS[-1]), progress=False, keep_runs=False,
                                cases=[(kp_study, kp_study.cases[2])])
-    default, converged = rows
-    assert default.motion != "decay" and converged.motion == "decay"
-    assert default.tail_ptp_um > 10 * converged.tail_ptp_um
+    default, tighter, converged = rows
+    assert converged.motion == "decay"
+    assert default.tail_ptp_um > 100 * converged.tail_ptp_um      # measured 7e4 and 2e5 on two machines
+    assert default.tail_ptp_um > 100 * tighter.tail_ptp_um        # measured 2e3 and 6e3
     assert verdicts(rows)[0]["verdict"].startswith("artefact")

@@ -149,6 +149,14 @@ def test_fuzzed_cli_arguments_exit_0_or_2_with_one_line(command, data, tmp_path_
         assert len(lines) == 1 and "error" in lines[0], (argv, out.err)
 
 
+@pytest.mark.parametrize("t_end", ["1e9", "99999999", "1e300"])
+def test_a_huge_simulated_time_is_refused_before_allocation(t_end, capsys):
+    # found by the randomized fuzz: `simulate --t-end 99999999` tried to allocate 7.28 TiB
+    assert _exit_status(["simulate", "--t-end", t_end]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "t_end" in err[0]
+
+
 def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
     import shutil
 

@@ -159,12 +159,20 @@ class BatchResult:
 
 
 # --- argument handling ---------------------------------------------------------------------------
+#: samples per run beyond which a run is refused before allocation (1e7 = 1000 s at 10 kHz; each run
+#: keeps about a dozen float64 records of this length)
+MAX_SAMPLES = 10_000_000
+
+
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end = {t_end!r} s is invalid: must be finite and > 0")
     if not (math.isfinite(dt_out) and 0 < dt_out <= t_end):
         raise ValueError(f"dt_out = {dt_out!r} s is invalid: must be in (0, t_end = {t_end}]")
     n = int(round(t_end / dt_out)) + 1
+    if n > MAX_SAMPLES:
+        raise ValueError(f"t_end = {t_end!r} s with dt_out = {dt_out!r} s would need {n:.3g} samples per run; "
+                         f"allowed up to {MAX_SAMPLES:.0e} (at most {MAX_SAMPLES * dt_out:.3g} s at this dt_out)")
     return np.arange(n) * dt_out
 
 
