@@ -22,6 +22,7 @@ commands:
   params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
   scenarios   the named failure scenarios with the paper PID's measured outcome
   tasks       the benchmark's tasks (startup, rolling, change) and their seed ranges
+  tune        tune a task's classical baselines on its tuning plants (--out FILE or --write-config)
   train       train a PPO / SAC / RecurrentPPO agent from configs/agents/
   benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
   sweep       controllers over many plants with wide parameter ranges (local processes or Ray)
@@ -207,6 +208,12 @@ def _cmd_sweep(args) -> int:
     return sweep_from_cli(args)
 
 
+def _cmd_tune(args) -> int:
+    from millvib_env.training.tune_task import tune_from_cli
+
+    return tune_from_cli(args)
+
+
 def _cmd_benchmark(args) -> int:
     from millvib_env.training.benchmark import benchmark_from_cli
 
@@ -299,6 +306,29 @@ def build_parser() -> argparse.ArgumentParser:
         "for startup, on every named scenario; report cost (mean and CVaR-20), severity (mean, p95, first "
         "0.1 s, rest, pump line, 10-100 Hz), ISO zones, tracking RMS and divergence. With no arguments: every "
         "baseline and every shipped agent of the startup task.")), _cmd_benchmark)
+    from millvib_env.tasks import list_tasks
+    from millvib_env.training.tune_task import ENTRIES, __doc__ as tune_doc
+
+    p = sub.add_parser("tune", help="tune a task's classical baselines", description=tune_doc,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", default="startup", choices=list_tasks(), help="task (default startup)")
+    p.add_argument("--only", nargs="+", choices=ENTRIES, metavar="ENTRY",
+                   help=f"tune only these entries (default: all): {', '.join(ENTRIES)}")
+    p.add_argument("--from", dest="from_task", choices=list_tasks(),
+                   help="take pid-oracle, lqr-oracle and pid-pf-oracle from this task instead of tuning them")
+    p.add_argument("--grid", type=int, default=5, help="oracle grid points per axis (default 5)")
+    p.add_argument("--optuna", metavar="STORAGE", help="tune pid-nominal and pid-robust by an Optuna study in "
+                                                        "STORAGE (journal:PATH or a database URL), shared by every "
+                                                        "process that names it")
+    p.add_argument("--trials", type=int, default=60, help="Optuna trials this process runs (default 60)")
+    p.add_argument("--out", metavar="FILE", help="write the task's control config with the tuned entries to FILE")
+    p.add_argument("--write-config", action="store_true",
+                   help="write into the shipped configs/control/<task>.yaml instead")
+    p.add_argument("--force", action="store_true",
+                   help="replace entries even where this run's tuning cost is worse than theirs")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=_cmd_tune)
+
     p = sub.add_parser("sweep", help="controllers over many plants", description=(
         "A robustness sweep: every controller on N plants of a task with the swept parameters drawn over wide "
         "ranges (c1, Ct: the paper's, log-uniform; beta_e, mt, FL: +-20 %% of Table 1), from held-out seeds. Writes "

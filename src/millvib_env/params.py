@@ -174,16 +174,18 @@ class PIDGains:
     Units: kp in V/m, ki in V/(m s), kd in V s/m (u is the servo-amplifier input in volts,
     e = xd - x in metres). All must be finite and >= 0. `kpl` (V/Pa, default 0: the paper's loop)
     adds pressure feedback, u -= KPL (pL - pL_ref), the textbook active damping of a hydraulic
-    servo; `to_array` gives (KP, KI, KD) only.
+    servo; `kff` (V/N, default 0) a feedforward of the load cells' force deviation, u += KFF dF;
+    `to_array` gives (KP, KI, KD) only.
     """
 
     kp: float
     ki: float = 0.0
     kd: float = 0.0
     kpl: float = 0.0
+    kff: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("kp", "ki", "kd", "kpl"):
+        for name in ("kp", "ki", "kd", "kpl", "kff"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
                 raise ValueError(f"PIDGains.{name} = {value!r} is invalid: must be a real number >= 0")

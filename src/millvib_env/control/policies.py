@@ -34,7 +34,7 @@ from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
 __all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "LQRPolicy", "AgentPolicy", "GainTable",
-           "load_controller", "baseline_names", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
+           "load_controller", "baseline_names", "named_gains", "REFERENCE", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
 
 #: every baseline by name, with what it is
 BASELINES = {
@@ -45,7 +45,15 @@ BASELINES = {
     "pid-adaptive": "estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the estimate",
     "lqr-oracle": "knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
                   "linearised plant; not deployable",
+    "pid-pf-robust": "one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range of c1 and Ct: "
+                     "the active damping a plant engineer commissions; the benchmark's reference",
+    "pid-pf-ff": "pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), all five gains "
+                 "tuned together: the classical opponent of a controller that reads the load cells",
+    "pid-pf-oracle": "knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
+                     "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
 }
+#: the benchmark's default reference: the strongest deployable classical controller
+REFERENCE = "pid-pf-robust"
 
 
 class Controller:
@@ -74,10 +82,20 @@ class Controller:
 
 
 class FixedGainPolicy(Controller):
-    def __init__(self, name: str, gains, gain_map: GainMap, description: str = ""):
+    """A fixed-gain controller. A PID holds the action that maps to its gains in the task's env; a
+    PID with pressure feedback (4 gains) or force feedforward (5) runs in an env whose action is
+    relative to its gains with zero range (`fixed_actions`), so its gains are exact."""
+
+    def __init__(self, name: str, gains, gain_map: GainMap | None, description: str = ""):
         self.name, self.description = name, description
         self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)
-        self._action = gain_map.action(self.gains).astype(np.float32)
+        if len(self.gains) > 3:
+            from millvib_env.envs.actions import fixed_actions
+
+            self.env_kwargs = {"actions": fixed_actions(self.gains)}
+            self._action = np.zeros(len(self.gains), dtype=np.float32)
+        else:
+            self._action = gain_map.action(self.gains).astype(np.float32)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(observation)
@@ -149,12 +167,19 @@ class GainTable:
 
 
 class OraclePolicy(PerEnvGains):
-    """Per-plant gains from the offline-tuned grid (`GainTable`) for the true (c1, Ct)."""
+    """Per-plant gains from the offline-tuned grid (`GainTable`) for the true (c1, Ct); a table of
+    four gains (pid-pf-oracle) runs with pressure feedback in the wide-bounds action."""
 
     name = "pid-oracle"
 
-    def __init__(self, table: GainTable, gain_map: GainMap):
-        self.table, self.gain_map = table, gain_map
+    def __init__(self, table: GainTable, gain_map: GainMap, name: str = "pid-oracle", task: str | None = None):
+        self.table, self.gain_map, self.name = table, gain_map, name
+        if table.log_gains.shape[-1] > 3:
+            from millvib_env.envs.actions import wide_actions
+
+            self.env_kwargs = {"actions": wide_actions(table.log_gains.shape[-1])}
+            self.gain_map = GainMap.from_config(load_env_config(get_task(task or "startup").config,
+                                                                **self.env_kwargs))
         self._actions = None
 
     def gains_for(self, c1: float, ct: float) -> np.ndarray:
@@ -268,6 +293,29 @@ def baseline_names() -> list[str]:
     return list(BASELINES)
 
 
+def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
+    """An entry's gains, checked: finite numbers >= 0, 3 (PID), 4 (+ KPL) or 5 (+ KFF) of them."""
+    gains = entry.get("gains") if isinstance(entry, dict) else None
+    where = f"configs/control/{get_task(task).name}.yaml {name}.gains"
+    if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
+        raise ValueError(f"{where} = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])")
+    for k, g in enumerate(gains):
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not np.isfinite(g) or g < 0:
+            raise ValueError(f"{where}[{k}] = {g!r} is invalid: a finite number >= 0")
+    return [float(g) for g in gains]
+
+
+def named_gains(task: str, name: str) -> list[float]:
+    """The gains of a fixed-gain baseline of `task` (pid-robust, pid-pf-robust, pid-pf-ff, ...), as a
+    hyperparameter file may name them for a residual or relative action's base."""
+    if name not in ("pid-paper", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"):
+        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline (pid-paper, pid-nominal, pid-robust, "
+                         "pid-pf-robust, pid-pf-ff)")
+    if name == "pid-paper":
+        return [float(g) for g in PAPER_GAINS.to_array()]
+    return _checked_gains(task, name, _entry(task, name))
+
+
 #: the folder of training seed s of a multi-seed agent: <agent>/seed-<s>/
 SEED_FOLDER = re.compile(r"seed-(\d+)")
 
@@ -330,8 +378,8 @@ def agent_seeds(name: str) -> list[int]:
     return list(agent_seed_folders(agent_folder(name)))
 
 
-def oracle_table(task: str) -> GainTable:
-    entry = _entry(task, "pid-oracle")
+def oracle_table(task: str, name: str = "pid-oracle") -> GainTable:
+    entry = _entry(task, name)
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
@@ -344,11 +392,11 @@ def load_controller(name: str, task: str = "startup", config: EnvConfig | None =
     ctrl: Controller
     if name == "pid-paper":
         ctrl = FixedGainPolicy(name, PAPER_GAINS, gain_map, BASELINES[name])
-    elif name in ("pid-nominal", "pid-robust"):
+    elif name in ("pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"):
         entry = _entry(task, name)
-        ctrl = FixedGainPolicy(name, entry["gains"], gain_map, entry.get("how", ""))
-    elif name == "pid-oracle":
-        ctrl = OraclePolicy(oracle_table(task), gain_map)
+        ctrl = FixedGainPolicy(name, _checked_gains(task, name, entry), gain_map, entry.get("how", ""))
+    elif name in ("pid-oracle", "pid-pf-oracle"):
+        ctrl = OraclePolicy(oracle_table(task, name), gain_map, name, task)
     elif name == "lqr-oracle":
         from millvib_env.control.lqr import LQRWeights
 

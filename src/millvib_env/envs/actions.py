@@ -1,11 +1,16 @@
-"""The gain/action mapping, in one place: gain-schedule actions in [-1, 1]^k <-> PID gains.
+"""The gain/action mapping, in one place: gain-schedule actions in [-1, 1]^k <-> controller gains.
 
-Each gain is mapped onto its bounds (config section ``actions``), on a log scale by default,
-``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))``, or linearly with
-``actions.scale: linear``, ``g = lo + (a + 1) / 2 * (hi - lo)`` (bounds may then be negative: the
-LQR reference's position gain can be, when its pressure feedback carries the position loop).
-The action has three entries (KP, KI, KD) or, with ``actions.pressure_feedback: true``, four
-(KP, KI, KD, KPL).
+The gains are (KP, KI, KD), then KPL with ``actions.pressure_feedback: true`` and KFF with
+``actions.force_feedforward: true``. Two mappings:
+
+* **absolute** (the default): each gain is mapped onto its bounds (config section ``actions``), on
+  a log scale, ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))``, or linearly with
+  ``actions.scale: linear``, ``g = lo + (a + 1) / 2 * (hi - lo)`` (bounds may then be negative: the
+  LQR reference's position gain can be, when its pressure feedback carries the position loop);
+* **relative** (``actions.relative: {base: [...], decades: [...]}``): each entry is a bounded log
+  offset around a base gain set, ``g = base * 10 ** (decades * a)``: the zero action is exactly
+  the base controller (a fixed PID + pressure feedback, say), +-1 moves a gain by `decades` decades
+  either way, and a gain with ``decades = 0`` stays pinned at its base value.
 """
 
 from __future__ import annotations
@@ -16,28 +21,70 @@ import numpy as np
 
 from millvib_env.envs.config import EnvConfig
 
-__all__ = ["GainMap", "GAIN_NAMES", "GAIN_UNITS"]
+__all__ = ["GainMap", "GAIN_NAMES", "GAIN_UNITS", "WIDE_BOUNDS", "wide_actions", "fixed_actions"]
 
-GAIN_NAMES = ("kp", "ki", "kd", "kpl")
-GAIN_UNITS = {"kp": "V/m", "ki": "V/(m s)", "kd": "V s/m", "kpl": "V/Pa"}
+GAIN_NAMES = ("kp", "ki", "kd", "kpl", "kff")
+GAIN_UNITS = {"kp": "V/m", "ki": "V/(m s)", "kd": "V s/m", "kpl": "V/Pa", "kff": "V/N"}
+#: log bounds wide enough for the PID + pressure feedback (+ force feedforward) controllers' gains; KD
+#: keeps the 300 V s/m limit every controller has (position-sensor noise, see configs/env/startup.yaml)
+WIDE_BOUNDS = {"kp": (1e4, 1e7), "ki": (1e-3, 1e10), "kd": (1.0, 300.0), "kpl": (1e-8, 1e-2), "kff": (1e-7, 1e-1)}
+
+
+def wide_actions(n_gains: int) -> dict:
+    """The ``actions`` overrides of a gain-schedule env whose absolute action spans `WIDE_BOUNDS` with
+    3 (PID), 4 (+ KPL) or 5 (+ KFF) gains."""
+    if n_gains not in (3, 4, 5):
+        raise ValueError(f"a gain set has 3 (PID), 4 (+ KPL) or 5 (+ KFF) entries, not {n_gains}")
+    return {"pressure_feedback": n_gains >= 4, "force_feedforward": n_gains == 5,
+            **{k: list(v) for k, v in WIDE_BOUNDS.items()}}
+
+
+def fixed_actions(gains) -> dict:
+    """The ``actions`` overrides in which every action is the fixed controller `gains` (3-5 entries),
+    exactly: a relative map around them with zero range."""
+    g = [float(v) for v in gains]
+    return {"pressure_feedback": len(g) >= 4, "force_feedforward": len(g) == 5,
+            "relative": {"base": g, "decades": 0.0}}
+
+
+def gain_names(pressure_feedback: bool, force_feedforward: bool = False) -> tuple[str, ...]:
+    """The gains an action sets: KP, KI, KD, then KPL and KFF where the config switches them on."""
+    return GAIN_NAMES[:3] + (("kpl",) if pressure_feedback else ()) + (("kff",) if force_feedforward else ())
 
 
 @dataclass(frozen=True)
 class GainMap:
-    """Map between actions in [-1, 1]^dim and the gains `names` with bounds [lo, hi]."""
+    """Map between actions in [-1, 1]^dim and the gains `names`: onto bounds [lo, hi] (absolute) or
+    as log offsets of +-`decades` around `base` (relative, when `base` is given)."""
 
     names: tuple[str, ...]
     lo: np.ndarray
     hi: np.ndarray
     log: bool = True
+    base: np.ndarray | None = None
+    decades: np.ndarray | None = None
 
     @classmethod
     def from_config(cls, config: EnvConfig, pressure_feedback: bool | None = None) -> "GainMap":
         acts = config["actions"]
         pf = config.pressure_feedback if pressure_feedback is None else pressure_feedback
-        names = GAIN_NAMES if pf else GAIN_NAMES[:3]
-        return cls(names, np.array([acts[k][0] for k in names], float), np.array([acts[k][1] for k in names], float),
-                   acts.get("scale", "log") == "log")
+        names = gain_names(pf, bool(acts.get("force_feedforward", False)))
+        lo = np.array([acts[k][0] for k in names], float)
+        hi = np.array([acts[k][1] for k in names], float)
+        rel = acts.get("relative")
+        if rel:
+            base = np.asarray(rel["base"], float)
+            if base.shape != (len(names),):
+                raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: it needs "
+                                 f"{len(names)} gains {list(names)} (pressure_feedback / force_feedforward set "
+                                 "the entries)")
+            decades = np.broadcast_to(np.asarray(rel.get("decades", 1.0), float), base.shape).copy()
+            return cls(names, lo, hi, True, base, decades)
+        return cls(names, lo, hi, acts.get("scale", "log") == "log")
+
+    @property
+    def relative(self) -> bool:
+        return self.base is not None
 
     @property
     def dim(self) -> int:
@@ -53,19 +100,37 @@ class GainMap:
 
     def gains(self, action: np.ndarray) -> np.ndarray:
         """Gains (..., dim) for actions (..., dim); actions outside [-1, 1] are clipped."""
-        frac = (np.clip(action, -1.0, 1.0) + 1.0) / 2.0
+        a = np.clip(action, -1.0, 1.0)
+        if self.relative:
+            return self.base * 10.0 ** (self.decades * a)
+        frac = (a + 1.0) / 2.0
         if self.log:
             return 10.0 ** (self.log_lo + frac * (self.log_hi - self.log_lo))
         return self.lo + frac * (self.hi - self.lo)
 
     def action(self, gains) -> np.ndarray:
-        """The action that maps to `gains` (..., dim, or 3: a missing KPL means the lowest); clipped."""
+        """The action that maps to `gains` (..., dim, or 3: missing gains take their lowest bound, or
+        their base in the relative map); clipped to [-1, 1]."""
         g = np.asarray(gains, dtype=np.float64)
-        if g.shape[-1] == 3 and self.dim == 4:
-            g = np.concatenate([g, np.full(g.shape[:-1] + (1,), self.lo[3])], axis=-1)
+        if g.shape[-1] < self.dim:
+            fill = (self.base if self.relative else self.lo)[g.shape[-1]:]
+            g = np.concatenate([g, np.broadcast_to(fill, g.shape[:-1] + fill.shape)], axis=-1)
         g = g[..., :self.dim]
+        if self.relative:
+            offset = np.log10(np.maximum(g, 1e-300) / self.base)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a = np.where(self.decades > 0, offset / np.where(self.decades > 0, self.decades, 1.0), 0.0)
+            return np.clip(a, -1.0, 1.0)
         if self.log:
             frac = (np.log10(np.maximum(g, 1e-300)) - self.log_lo) / (self.log_hi - self.log_lo)
         else:
             frac = (g - self.lo) / (self.hi - self.lo)
         return np.clip(2.0 * frac - 1.0, -1.0, 1.0)
+
+    def start_gains(self, paper: np.ndarray) -> np.ndarray:
+        """The gains an episode starts with: the base (relative map), else the paper's (KP, KI, KD)
+        with KPL and KFF at their lowest bounds (or 0 where a linear bound allows it)."""
+        if self.relative:
+            return self.base.copy()
+        rest = np.maximum(self.lo[3:], 0.0)
+        return np.concatenate([np.asarray(paper, float)[:3], rest])

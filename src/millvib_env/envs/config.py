@@ -116,6 +116,10 @@ class EnvConfig:
     def pressure_feedback(self) -> bool:
         return bool(self.raw["actions"].get("pressure_feedback", False))
 
+    @property
+    def force_feedforward(self) -> bool:
+        return bool(self.raw["actions"].get("force_feedforward", False))
+
 
 # --- the schema --------------------------------------------------------------------------------
 def _fail(path: str, value: Any, allowed: str) -> None:
@@ -230,10 +234,34 @@ def _gain_bounds(path: str, value: Any) -> None:
 
 
 def _residual_gains(path: str, value: Any) -> None:
-    if not isinstance(value, (list, tuple)) or len(value) not in (3, 4):
-        _fail(path, value, "must be [KP, KI, KD] or [KP, KI, KD, KPL], each >= 0")
+    if not isinstance(value, (list, tuple)) or len(value) not in (3, 4, 5):
+        _fail(path, value, "must be [KP, KI, KD], [KP, KI, KD, KPL] or [KP, KI, KD, KPL, KFF], each >= 0")
     for k, g in enumerate(value):
         _number(f"{path}[{k}]", g, lo=0.0)
+
+
+def _relative(path: str, value: Any) -> None:
+    if value is None:
+        return
+    _section(path, value, {"base": _base_gains, "decades": _decades}, required=("base",))
+
+
+def _base_gains(path: str, value: Any) -> None:
+    if isinstance(value, str):
+        _fail(path, value, "must be a list of gains (a named gain set such as 'pid-pf-robust' is resolved by "
+                           "`millvib train` from configs/control/<task>.yaml, not by the environment)")
+    if not isinstance(value, (list, tuple)) or not 3 <= len(value) <= 5:
+        _fail(path, value, "must be [KP, KI, KD] plus KPL and KFF where switched on, each > 0")
+    for k, g in enumerate(value):
+        _number(f"{path}[{k}]", g, lo=0.0, lo_open=True)
+
+
+def _decades(path: str, value: Any) -> None:
+    if isinstance(value, (list, tuple)):
+        for k, d in enumerate(value):
+            _number(f"{path}[{k}]", d, lo=0.0, hi=6.0)
+    else:
+        _number(path, value, lo=0.0, hi=6.0)
 
 
 _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
@@ -243,21 +271,23 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
     "disturbances": lambda p, v: _section(p, v, _DISTURBANCES),
     "reward": lambda p, v: _section(p, v, {
         "vibration_scale_mm_s": _pos, "tracking_scale_um": _pos, "vib_time_constant_s": _pos,
-        "w_vibration": _nonneg, "w_tracking": _nonneg, "w_effort": _nonneg, "terminal_penalty": _nonneg},
+        "w_vibration": _nonneg, "w_tracking": _nonneg, "w_effort": _nonneg, "w_offset": _nonneg,
+        "terminal_penalty": _nonneg},
         required=("vibration_scale_mm_s", "tracking_scale_um", "vib_time_constant_s", "w_vibration",
                   "w_tracking", "w_effort", "terminal_penalty")),
     "actions": lambda p, v: _section(p, v, {
-        "kp": _gain_bounds, "ki": _gain_bounds, "kd": _gain_bounds, "kpl": _gain_bounds,
-        "pressure_feedback": _bool, "u_range_v": _pos, "residual_range_v": _pos,
+        "kp": _gain_bounds, "ki": _gain_bounds, "kd": _gain_bounds, "kpl": _gain_bounds, "kff": _gain_bounds,
+        "pressure_feedback": _bool, "force_feedforward": _bool, "relative": _relative,
+        "u_range_v": _pos, "residual_range_v": _pos,
         "residual_gains": _residual_gains, "scale": lambda pp, vv: vv in ("log", "linear") or _fail(
             pp, vv, "'log' or 'linear'")},
-        required=("kp", "ki", "kd", "kpl", "u_range_v", "residual_range_v", "residual_gains")),
+        required=("kp", "ki", "kd", "kpl", "kff", "u_range_v", "residual_range_v", "residual_gains")),
     "envelope": lambda p, v: _section(p, v, {
         "x_max_m": lambda pp, vv: _number(pp, vv, lo=0.0, hi=0.1, lo_open=True),
         "p_min_pa": lambda pp, vv: _number(pp, vv, hi=0.0), "p_max_factor": lambda pp, vv: _number(
             pp, vv, lo=1.0, hi=9.0, lo_open=True)},
         required=("x_max_m", "p_min_pa", "p_max_factor")),
-    "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool}),
+    "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool}),
 }
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",
@@ -328,7 +358,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
     for key, check in _SECTIONS.items():
         check(key, data[key])
     if data["actions"].get("scale", "log") == "log":
-        for key in ("kp", "ki", "kd", "kpl"):
+        for key in ("kp", "ki", "kd", "kpl", "kff"):
             if data["actions"][key][0] <= 0:
                 _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
                       "(or actions.scale: linear)")

@@ -31,11 +31,15 @@ from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND, state_scale
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KI, C_KP, C_KPL, C_UEXT, IPL, IV, IX,
-                                     NAUX, NC, NPACK, NY, P_PF, P_PS, drive_vector, pack, settled_state)
+from millvib_env.plant.model import (A_ACC, A_U, C_DFL, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_UEXT,
+                                     IPL, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, drive_vector, pack,
+                                     settled_state)
 from millvib_env.severity import band_levels, iso_zone, vibration_severity
 
 __all__ = ["MillVibCore", "MAX_BATCH_BYTES"]
+
+#: where each gain of a gain-schedule action goes in the drive vector
+GAIN_COLUMNS = {"kp": C_KP, "ki": C_KI, "kd": C_KD, "kpl": C_KPL, "kff": C_KFF}
 
 #: how much recent history (s) the render keeps
 RENDER_WINDOW_S = 0.1
@@ -63,6 +67,7 @@ class MillVibCore:
         raw = config.raw
         observe_params = raw["observation"].get("params", False) if observe_params is None else observe_params
         observe_phase = raw["observation"].get("phase", False) if observe_phase is None else observe_phase
+        self.observe_force = bool(raw["observation"].get("force", False))
         self.period_s = config.decision_dt_s if mode == "gain" else config.control_dt_s
         self.n_sub = int(round(self.period_s / config.control_dt_s))
         self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
@@ -85,8 +90,8 @@ class MillVibCore:
         self.act_dim = self.gain_map.dim if mode == "gain" else 1
         self.action_space = spaces.Box(-1.0, 1.0, (self.act_dim,), dtype=np.float32)
         self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
-                                 observe_phase=observe_phase, observe_params=observe_params, noise=noise,
-                                 delay=delay, n=self.n)
+                                 observe_phase=observe_phase, observe_params=observe_params,
+                                 observe_force=self.observe_force, noise=noise, delay=delay, n=self.n)
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
@@ -176,10 +181,9 @@ class MillVibCore:
         self.DFL[i, :self.n_ctrl] = profile.dFL
         self.DFL[i, self.n_ctrl:] = profile.dFL[-1]
         if self.mode == "gain":
-            # the paper's PID; with pressure feedback in the action, KPL starts at its lowest bound
-            start = PAPER_GAINS if self.gain_map.dim == 3 else PIDGains(
-                PAPER_GAINS.kp, PAPER_GAINS.ki, PAPER_GAINS.kd, kpl=max(float(self.gain_map.lo[3]), 0.0))
-            self.gains[i] = [start.kp, start.ki, start.kd, start.kpl][:self.gain_map.dim]
+            # the paper's PID (KPL, KFF at their lowest bounds), or the base gains of a relative action
+            self.gains[i] = self.gain_map.start_gains(PAPER_GAINS.to_array())
+            start = PIDGains(**dict(zip(self.gain_map.names, (float(g) for g in self.gains[i]))))
         else:
             start = self.residual_gains
             self.gains[i] = np.resize(start.to_array(), self.gains.shape[1]) if self.residual else 0.0
@@ -229,9 +233,8 @@ class MillVibCore:
         n = self.n
         if self.mode == "gain":
             self.gains = self.gain_map.gains(a)
-            self.C[:, C_KP], self.C[:, C_KI], self.C[:, C_KD] = self.gains[:, :3].T
-            if self.gain_map.dim == 4:
-                self.C[:, C_KPL] = self.gains[:, 3]
+            for j, name in enumerate(self.gain_map.names):
+                self.C[:, GAIN_COLUMNS[name]] = self.gains[:, j]
             effort = np.mean(np.abs(a - self.last_action), axis=1)
         else:
             self.C[:, C_UEXT] = a[:, 0] * self.u_range
@@ -272,7 +275,8 @@ class MillVibCore:
         ps = self.P[:, P_PS]
         terminated = failed | (np.abs(x).max(axis=1) > self.x_max) | (pL.min(axis=1) < self.p_min) \
             | (pL.max(axis=1) > self.p_max_factor * ps)
-        reward, _, err_ms = self.reward.step(v, e, effort, terminated)
+        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" else None
+        reward, _, err_ms = self.reward.step(v, e, effort, terminated, offset)
         self.sq_err_sum += err_ms * self.n_samp
         self.k += 1
         truncated = (self.k >= self.max_steps) & ~terminated
@@ -321,7 +325,14 @@ class MillVibCore:
         return self.observer.build(idx, self.noise_rng, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
                                    u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
-                                   params=params)
+                                   params=params, force=self.force_deviation(idx) if self.observe_force else None)
+
+    def force_deviation(self, idx: np.ndarray) -> np.ndarray:
+        """The load cells' rolling-force deviation FL(t) - FL (N) of environments `idx` now: the force
+        step of the period just integrated plus the roll eccentricity at the current time."""
+        col = np.clip(self.k[idx] * self.n_sub - 1, 0, self.DFL.shape[1] - 1)
+        dfl = self.DFL[idx, col]
+        return dfl + self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * self.T[idx] + self.C[idx, C_EP])
 
     def episode_metrics(self, i: int, terminated: bool) -> dict:
         """Episode-end metrics of environment i: severity over the whole episode (`vibration_severity`),

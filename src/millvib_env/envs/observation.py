@@ -21,6 +21,7 @@ OBS_SCALES = {
     "velocity": ("piston velocity", "m/s", 1e-4, 5.0),
     "acceleration": ("piston acceleration (accelerometer)", "m/s^2", 1e-2, 1e5),
     "vibration": ("running RMS of band-limited (10-1000 Hz) velocity", "mm/s", 1e-2, 1e4),
+    "load_force": ("load cells' rolling-force deviation FL(t) - FL", "N", 1e3, 1e6),
 }
 
 
@@ -33,9 +34,9 @@ class Observer:
     """Builds the observation vectors of a batch of environments in one mode."""
 
     def __init__(self, mode: str, *, residual: bool, gain_names: tuple[str, ...], observe_phase: bool,
-                 observe_params: bool, noise, delay: int, n: int):
+                 observe_params: bool, noise, delay: int, n: int, observe_force: bool = False):
         self.mode, self.residual, self.noise, self.delay = mode, residual, noise, delay
-        self.observe_phase, self.observe_params = observe_phase, observe_params
+        self.observe_phase, self.observe_params, self.observe_force = observe_phase, observe_params, observe_force
         names = ["error", "velocity", "acceleration", "pressure", "vibration"]
         if mode == "gain":
             names += [f"log_{g}" for g in gain_names]
@@ -45,15 +46,18 @@ class Observer:
             names += ["pump_sin", "pump_cos"]
         if observe_params:
             names += ["log_c1", "log_Ct"]
+        if observe_force:
+            names += ["load_force"]
         self.names = names
         self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
 
     def build(self, idx: np.ndarray, noise_rngs, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
-              params) -> np.ndarray:
+              params, force=None) -> np.ndarray:
         """Observation rows for environments `idx` (sensor noise applied to e, v, a).
 
         control: the gain-action channels (gain mode) or the last action (valve mode); phase: the
-        pump's phase angle (rad); params: (c1, Ct) pairs of the current plants.
+        pump's phase angle (rad); params: (c1, Ct) pairs of the current plants; force: the load
+        cells' force deviation (N).
         """
         if self.noise is not None:
             noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
@@ -70,6 +74,8 @@ class Observer:
             for k, (lo, hi) in enumerate(PARAM_OBS_RANGES.values()):
                 vals = np.log(np.asarray(params)[:, k])
                 cols.append(np.clip(2 * (vals - math.log(lo)) / (math.log(hi) - math.log(lo)) - 1, -1, 1))
+        if self.observe_force:
+            cols.append(slog(np.asarray(force, float), *OBS_SCALES["load_force"][2:]))
         return np.stack(cols, axis=1).astype(np.float32)
 
     def start(self, i: int, obs: np.ndarray) -> np.ndarray:

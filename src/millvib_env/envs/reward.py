@@ -1,9 +1,10 @@
 """The per-step reward and the running vibration measure the agent observes.
 
-``r = -(w_v RMS(v_b) / vibration_scale + w_e RMS(e) / tracking_scale + w_u effort) - P [terminated]``
+``r = -(w_v RMS(v_b) / vibration_scale + w_e RMS(e) / tracking_scale + w_u effort + w_o offset) - P [terminated]``
 with v_b the band-limited (10-1000 Hz, causal 4th-order Butterworth) piston velocity and
 e = xd - x, both over the period's plant samples; effort is the mean |change of the gain action|
-(gain mode) or the squared valve action (valve mode).
+(gain mode) or the squared valve action (valve mode); offset (gain mode, ``w_offset``, default 0) is
+the mean squared action: with a relative action, how far the gains are from their base controller.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ class Reward:
 
     def __init__(self, spec: dict, *, period_s: float, sample_rate_hz: float, n: int):
         self.w_vib, self.w_trk, self.w_eff = spec["w_vibration"], spec["w_tracking"], spec["w_effort"]
+        self.w_off = float(spec.get("w_offset", 0.0))
         self.vib_scale = spec["vibration_scale_mm_s"] * 1e-3
         self.trk_scale = spec["tracking_scale_um"] * 1e-6
         self.penalty = spec["terminal_penalty"]
@@ -33,7 +35,8 @@ class Reward:
         self.zi[:, i, :] = 0.0
         self.vib_ema[i] = 0.0
 
-    def step(self, v: np.ndarray, e: np.ndarray, effort: np.ndarray, terminated: np.ndarray):
+    def step(self, v: np.ndarray, e: np.ndarray, effort: np.ndarray, terminated: np.ndarray,
+             offset: np.ndarray | None = None):
         """(reward, mean square of band velocity, mean square of error) of this period, per env."""
         v_band, self.zi = ssig.sosfilt(self.sos, v, axis=1, zi=self.zi)
         vib_ms = np.mean(v_band**2, axis=1)
@@ -41,6 +44,8 @@ class Reward:
         self.vib_ema += self.ema_gain * (vib_ms - self.vib_ema)
         reward = -(self.w_vib * np.sqrt(vib_ms) / self.vib_scale + self.w_trk * np.sqrt(err_ms) / self.trk_scale
                    + self.w_eff * effort) - self.penalty * terminated
+        if self.w_off and offset is not None:
+            reward = reward - self.w_off * offset
         return reward, vib_ms, err_ms
 
     @property

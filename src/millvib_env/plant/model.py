@@ -16,8 +16,8 @@ Drive vector ``c`` (``NC``), held constant over an integration segment:
 KP, KI, KD (PID gains), xd (set-point, m), u_ext (external valve command, V, added to the PID
 output), pid_on (1.0 or 0.0), dFL (rolling-force offset, N), eccentricity force amplitude (N),
 angular frequency (rad/s) and phase (rad), KPL (pressure-feedback gain, V/Pa) and its reference
-pressure pL_ref (Pa), and a within-run change of the plant: start time t0 (s), duration (s) and
-the natural logs of the final factors on c1 and Ct.
+pressure pL_ref (Pa), a within-run change of the plant: start time t0 (s), duration (s) and
+the natural logs of the final factors on c1 and Ct, and KFF (force feedforward gain, V/N).
 
 A plant change is part of the drive, not a second copy of the equations: c1(t) = c1 F_c1^s(t) and
 Ct(t) = Ct F_Ct^s(t), with s(t) the smoothstep 3 tau^2 - 2 tau^3 of tau = (t - t0) / duration
@@ -27,10 +27,14 @@ adaptive integrators follow it without a restart, and the geometric interpolatio
 
 Equations (paper numbering):
 
-* (11) PID:  u = pid_on * (KP e + uI - KD v - KPL (pL - pL_ref)) + u_ext,  e = xd - x, saturated
-  at +-u_max. The pressure-feedback term (not in the paper; KPL = 0 by default, and then the
-  term is skipped, so trajectories are bit for bit those without it) is the textbook active
-  damping of a hydraulic servo: a load-pressure rise closes the valve, as leakage would.
+* (11) PID:  u = pid_on * (KP e + uI - KD v - KPL (pL - pL_ref) + KFF dF) + u_ext,  e = xd - x,
+  saturated at +-u_max. The pressure-feedback term (not in the paper; KPL = 0 by default, and then
+  the term is skipped, so trajectories are bit for bit those without it) is the textbook active
+  damping of a hydraulic servo: a load-pressure rise closes the valve, as leakage would. The
+  feedforward term (not in the paper either; KFF = 0 by default, skipped likewise) reads the load
+  cells: dF = FL(t) - FL is the rolling force's deviation from its nominal value (force steps and
+  roll eccentricity), and KFF dF opens the valve against a force rise before the position moves;
+  KFF = KPL / Ap cancels the pressure feedback's static give under a load change.
   The derivative acts on the measurement (-KD v), so a set-point step gives no derivative kick.
   Storing the integral *term* uI (not int e) makes gain changes bumpless in the integral term.
   Integration stops while the output saturates in the direction of e (anti-windup).
@@ -70,9 +74,9 @@ P_S0, P_S1, P_S2, P_FC, P_FS, P_VS = (_P[k] for k in ("sigma0", "sigma1", "sigma
 P_PA, P_PF, P_PH2, P_PH3, P_DPR, P_UMAX = (
     _P[k] for k in ("pulse_amp", "pulse_freq", "pulse_h2", "pulse_h3", "dp_reg", "u_max"))
 
-NC = 16
+NC = 17
 (C_KP, C_KI, C_KD, C_XD, C_UEXT, C_PID, C_DFL, C_EA, C_EW, C_EP, C_KPL, C_PLREF,
- C_CHG_T0, C_CHG_DT, C_CHG_LC1, C_CHG_LCT) = range(NC)
+ C_CHG_T0, C_CHG_DT, C_CHG_LC1, C_CHG_LCT, C_KFF) = range(NC)
 
 NAUX = 6
 A_ACC, A_U, A_XV, A_QL, A_FF, A_PS = range(NAUX)
@@ -152,6 +156,11 @@ def plant_rhs(t, y, p, c, dy, aux):
     u_pid = c[C_KP] * e + y[IUI] - c[C_KD] * v
     if c[C_KPL] != 0.0:
         u_pid -= c[C_KPL] * (pL - c[C_PLREF])
+    ecc = 0.0
+    if c[C_EA] != 0.0:
+        ecc = c[C_EA] * math.sin(c[C_EW] * t + c[C_EP])
+    if c[C_KFF] != 0.0:  # the load cells' force deviation, fed forward
+        u_pid += c[C_KFF] * (c[C_DFL] + ecc)
     u = c[C_PID] * u_pid + c[C_UEXT]
     umax = p[P_UMAX]
     dui = c[C_PID] * c[C_KI] * e
@@ -186,7 +195,7 @@ def plant_rhs(t, y, p, c, dy, aux):
     # force balance (8)
     fl = p[P_FL] + c[C_DFL]
     if c[C_EA] != 0.0:
-        fl += c[C_EA] * math.sin(c[C_EW] * t + c[C_EP])
+        fl += ecc
     acc = (p[P_AP] * pL - p[D_ABPB] - c1 * v - p[P_K1] * x - ff - fl) * p[D_INVM]
 
     dy[IX] = v
@@ -218,9 +227,10 @@ def drive_vector(gains: PIDGains, xd: float = 0.0, u_ext: float = 0.0, pid_on: b
                  dFL: float = 0.0, ecc_amp: float = 0.0, ecc_omega: float = 0.0,
                  ecc_phase: float = 0.0, pl_ref: float = 0.0,
                  change: "PlantChange | None" = None) -> np.ndarray:
-    """Pack a drive vector (see module docstring); `gains.kpl` is the pressure-feedback gain."""
+    """Pack a drive vector (see module docstring); `gains.kpl` is the pressure-feedback gain and
+    `gains.kff` the force feedforward gain."""
     c = np.zeros(NC)
-    c[C_KP], c[C_KI], c[C_KD], c[C_KPL] = gains.kp, gains.ki, gains.kd, gains.kpl
+    c[C_KP], c[C_KI], c[C_KD], c[C_KPL], c[C_KFF] = gains.kp, gains.ki, gains.kd, gains.kpl, gains.kff
     c[C_XD], c[C_UEXT], c[C_PID] = xd, u_ext, 1.0 if pid_on else 0.0
     c[C_DFL], c[C_EA], c[C_EW], c[C_EP] = dFL, ecc_amp, ecc_omega, ecc_phase
     c[C_PLREF] = pl_ref

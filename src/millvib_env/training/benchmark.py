@@ -118,21 +118,29 @@ CHUNK = 50
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_id: str = "MillVib-GainSchedule-v0",
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
-                  all_seeds: bool = False) -> dict:
+                  all_seeds: bool = False, reference: str | None = None) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
     ship (`all_seeds`, the full protocol; its default is FULL_EPISODES plants, DEFAULT_EPISODES
     otherwise). With `ray` (an address, or "" for a local cluster) controllers x seeds x chunks of
     CHUNK episodes run as Ray tasks; each episode depends only on its seeds, so the numbers are the
-    local run's."""
-    from millvib_env.control.policies import agent_seeds
+    local run's. Every controller is compared on the same plants with `reference` (default
+    `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
+    `controllers` leaves it out) and with pid-robust."""
+    from millvib_env.control.policies import REFERENCE, agent_seeds
 
     t = get_task(task)
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
     names = list(dict.fromkeys(controllers)) if controllers else baseline_names() + list_agents(t.name)
+    reference = REFERENCE if reference is None else reference
+    if not isinstance(reference, str) or not reference:
+        raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
+    if reference not in names:
+        load_controller(reference, t.name)  # an unknown name fails here, in one line, before any run
+        names = [reference] + names
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
     for n in names:
@@ -149,7 +157,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
             loaded[(n, None)] = first
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
-    result: dict = {"controllers": {}, "task": t.name, "seed": seed, "episodes": episodes, "env_id": env_id,
+    result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
+                    "env_id": env_id,
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
                     "scenarios": {}, "records": {}}
     start = time.time()
@@ -189,20 +198,29 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
 
 
 def _compare(result: dict) -> None:
-    """Paired comparisons on the same plants: the difference to pid-robust and the normalised score
+    """Paired comparisons on the same plants: per controller `paired` = {reference: ..., "pid-robust":
+    ...} (mean and CVaR-20 cost differences with their intervals, P(better)), `paired_vs_pid_robust`
+    (the same as paired["pid-robust"], kept for earlier readers) and the normalised score
     (0 = pid-robust, 1 = pid-oracle)."""
-    ref = result["records"].get("pid-robust")
-    oracle = result["records"].get("pid-oracle")
+    recs_of = result["records"]
+    refs = [n for n in dict.fromkeys([result.get("reference"), "pid-robust"]) if n in recs_of]
+    for name, recs in recs_of.items():
+        summary = result["controllers"][name]
+        costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
+        summary["paired"] = {ref: paired_difference(costs, [r["cost"] for r in recs_of[ref]])
+                             for ref in refs if ref != name}
+    ref = recs_of.get("pid-robust")
+    oracle = recs_of.get("pid-oracle")
     if ref is None:
         return
     stable = {r["seed"] for r in ref if not r["diverged"]}
     ref_cost = [r["cost"] for r in ref]
-    for name, recs in result["records"].items():
+    for name, recs in recs_of.items():
         summary = result["controllers"][name]
         summary["diverged_where_pid_robust_stable"] = int(sum(r["diverged"] and r["seed"] in stable for r in recs))
         costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
         if name != "pid-robust":
-            summary["paired_vs_pid_robust"] = paired_difference(costs, ref_cost)
+            summary["paired_vs_pid_robust"] = summary["paired"]["pid-robust"]
         if oracle is not None:
             summary["normalized_score"] = normalized_score(costs, ref_cost, [r["cost"] for r in oracle])
 
@@ -216,27 +234,33 @@ def format_table(result: dict) -> str:
     ctrls = result["controllers"]
     seeds_line = ("every training seed of every agent (the full protocol, --all-seeds)" if result.get("all_seeds")
                   else "one training seed per agent (its lowest; the full protocol is --all-seeds)")
+    ref = result.get("reference", "pid-robust")
     lines = [f"Task {result.get('task', 'startup')}: {result['episodes']} held-out plants drawn with seed "
              f"{result['seed']}; {seeds_line}. Cost = severity / {result['cost_scales']['severity_mm_s']} mm/s + "
              f"tracking RMS / {result['cost_scales']['tracking_um']} um; IQM = mean of the middle 50 % of episodes; "
              "CVaR-20 = mean of the worst 20 %; [95 % bootstrap intervals: plants resampled within each training "
-             "seed; paired to pid-robust on the same plants]; score: 0 = pid-robust, 1 = pid-oracle",
+             f"seed; paired to the reference {ref} (and to pid-robust) on the same plants]; score: 0 = pid-robust, "
+             "1 = pid-oracle",
              "",
-             "| controller | seeds | cost mean | cost IQM | cost CVaR-20 | worst episode | vs pid-robust | "
-             "CVaR-20 vs pid-robust | P(better) | score | severity (mm/s) | tracking RMS (um) | diverged |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"| controller | seeds | cost mean | cost IQM | cost CVaR-20 | worst episode | vs {ref} | "
+             f"CVaR-20 vs {ref} | P(better than {ref}) | vs pid-robust | score | severity (mm/s) | "
+             "tracking RMS (um) | diverged |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def pct(d: dict | None, key: str, ci: str) -> str:
+        return f"{100 * d[key]:+.1f} % [{100 * d[ci][0]:+.1f}, {100 * d[ci][1]:+.1f}]" if d else "-"
+
     for name, s in ctrls.items():
-        pr = s.get("paired_vs_pid_robust")
-        vs = (f"{100 * pr['cost_diff_rel']:+.1f} % [{100 * pr['ci'][0]:+.1f}, {100 * pr['ci'][1]:+.1f}]" if pr
-              else "-")
-        vs_cvar = (f"{100 * pr['cvar20_diff_rel']:+.1f} % [{100 * pr['cvar20_ci'][0]:+.1f}, "
-                   f"{100 * pr['cvar20_ci'][1]:+.1f}]" if pr else "-")
+        pr = s.get("paired", {}).get(ref)
+        robust = s.get("paired", {}).get("pid-robust")
         pb = f"{pr['p_improvement']:.2f}" if pr else "-"
         ns = s.get("normalized_score")
         sc = f"{ns['score']:+.2f} [{ns['ci'][0]:+.2f}, {ns['ci'][1]:+.2f}]" if ns and name != "pid-robust" else "-"
         lines.append(f"| {name} | {s['n_seeds']} | {_ci(s, 'cost_mean')} | {_ci(s, 'cost_iqm')} | "
-                     f"{_ci(s, 'cost_cvar20')} | {_ci(s, 'cost_worst')} | {vs} | {vs_cvar} | {pb} | {sc} | "
-                     f"{_ci(s, 'severity_mean')} | {_ci(s, 'tracking_rms_um_mean')} | {100 * s['diverged_rate']:.0f} % |")
+                     f"{_ci(s, 'cost_cvar20')} | {_ci(s, 'cost_worst')} | {pct(pr, 'cost_diff_rel', 'ci')} | "
+                     f"{pct(pr, 'cvar20_diff_rel', 'cvar20_ci')} | {pb} | {pct(robust, 'cost_diff_rel', 'ci')} | "
+                     f"{sc} | {_ci(s, 'severity_mean')} | {_ci(s, 'tracking_rms_um_mean')} | "
+                     f"{100 * s['diverged_rate']:.0f} % |")
     oracle = ctrls.get("pid-oracle", {}).get("normalized_score")
     if oracle and oracle.get("one_worse_than_zero"):
         lines.append("\nOn this task pid-oracle (the per-plant best fixed PID) costs more on average than pid-robust, "
@@ -308,7 +332,7 @@ def _write_files(result: dict, out: Path) -> list[Path]:
     files.append(write_text_atomic(out / "benchmark.md", format_table(result) + "\n"))
     files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
     files.append(_plot_plane(result, out / "severity_plane.png"))
-    if "pid-robust" in result["records"] and len(result["records"]) > 1:
+    if result.get("reference", "pid-robust") in result["records"] and len(result["records"]) > 1:
         files.append(_plot_paired_plane(result, out / "paired_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
     if result.get("task", "startup") == "startup":
@@ -389,7 +413,7 @@ def _plot_plane(result: dict, path: Path) -> Path:
 
 
 def _plot_paired_plane(result: dict, path: Path) -> Path:
-    """Per plant, each controller's cost relative to pid-robust's on that plant (mean over an
+    """Per plant, each controller's cost relative to the reference's on that plant (mean over an
     agent's seeds), over the (Ct, c1) plane: where learning or adaptation helps and where not."""
     import matplotlib
 
@@ -397,8 +421,9 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
 
-    ref = {r["seed"]: r for r in result["records"]["pid-robust"]}
-    names = [n for n in result["records"] if n != "pid-robust"]
+    ref_name = result.get("reference", "pid-robust")
+    ref = {r["seed"]: r for r in result["records"][ref_name]}
+    names = [n for n in result["records"] if n != ref_name]
     cols = min(3, len(names))
     rows = math.ceil(len(names) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 4.2 * rows), squeeze=False, layout="constrained")
@@ -414,7 +439,7 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
         keys = list(diffs[name])
         sc = ax.scatter([ref[k]["Ct"] for k in keys], [ref[k]["c1"] for k in keys], c=[diffs[name][k] for k in keys],
                         norm=norm, cmap="RdBu_r", s=28, edgecolors="k", linewidths=0.2)
-        pr = result["controllers"][name].get("paired_vs_pid_robust", {})
+        pr = result["controllers"][name].get("paired", {}).get(ref_name, {})
         ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
                title=f"{name} ({result['controllers'][name]['n_seeds']} seed(s))\nmean "
                      f"{100 * pr.get('cost_diff_rel', math.nan):+.1f} %, better on "
@@ -422,9 +447,9 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
         ax.title.set_fontsize(9)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
-    fig.colorbar(sc, ax=axes, label="cost vs pid-robust on the plant (%, blue = cheaper)", shrink=0.6,
+    fig.colorbar(sc, ax=axes, label=f"cost vs {ref_name} on the plant (%, blue = cheaper)", shrink=0.6,
                  extend="both")
-    fig.suptitle(f"Task {result['task']}: paired cost difference to pid-robust per held-out plant "
+    fig.suptitle(f"Task {result['task']}: paired cost difference to {ref_name} per held-out plant "
                  "(c1, Ct at the episode start)", fontsize=10)
     return save_figure(fig, path, dpi=100)
 
@@ -458,7 +483,7 @@ def benchmark_from_cli(args) -> int:
         raise ValueError(f"--seed {args.seed} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
                            scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray,
-                           all_seeds=args.all_seeds)
+                           all_seeds=args.all_seeds, reference=args.reference)
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

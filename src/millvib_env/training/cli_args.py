@@ -58,6 +58,10 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--all-seeds", action="store_true",
                    help="the full protocol: every training seed of every agent, 200 plants by default; without it, "
                         "each agent's lowest seed (a quick run, stated in the output)")
+    p.add_argument("--reference", default=None, metavar="NAME",
+                   help="the controller every other is paired with on the same plants (the table's 'vs' columns, "
+                        "paired_plane.png, the JSON's 'paired'); default pid-pf-robust, the strongest deployable "
+                        "classical controller; run even where --controllers leaves it out")
     p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios (startup only)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "

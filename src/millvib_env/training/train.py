@@ -30,7 +30,7 @@ from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.training.manifest import EVAL_CURVE
 
-__all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "ALGOS"]
+__all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
 #: validation plants per model card: the first of the task's validation seeds
@@ -48,6 +48,25 @@ def _algo_class(algo: str):
         from sb3_contrib import RecurrentPPO
         return RecurrentPPO
     raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
+
+
+def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
+    """`env_kwargs` with gain sets named by a baseline (``residual_gains: pid-pf-robust``,
+    ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task`
+    (configs/control/<task>.yaml): a hyperparameter file names the controller it builds on once, and
+    the model card records the numbers."""
+    from millvib_env.control.policies import named_gains
+
+    acts = env_kwargs.get("actions")
+    if not isinstance(acts, dict):
+        return env_kwargs
+    acts = dict(acts)
+    if isinstance(acts.get("residual_gains"), str):
+        acts["residual_gains"] = named_gains(task, acts["residual_gains"])
+    rel = acts.get("relative")
+    if isinstance(rel, dict) and isinstance(rel.get("base"), str):
+        acts["relative"] = {**rel, "base": named_gains(task, rel["base"])}
+    return {**env_kwargs, "actions": acts}
 
 
 def _checkpoints(folder: Path) -> list[tuple[Path, Path, int]]:
@@ -131,7 +150,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = dict(hp.pop("env_kwargs", None) or {})
+    env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), the_task.name)
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give

@@ -16,12 +16,12 @@ import numpy as np
 from scipy import optimize
 
 from millvib_env.control.policies import Controller
-from millvib_env.envs.actions import GainMap
+from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import run_episodes
 
-__all__ = ["GRID", "TuneResult", "mean_costs", "tune", "ActionTable"]
+__all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable"]
 
 #: the coarse grid (log10 of KP, KI, KD) the search starts from
 GRID = (np.arange(4.0, 7.01, 0.25), np.array([-3.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]),
@@ -41,19 +41,32 @@ class ActionTable(Controller):
         return self.actions, state
 
 
+#: the search bounds (V/m, V/(m s), V s/m, V/Pa, V/N) of the tunings with pressure feedback (and force
+#: feedforward)
+PF_BOUNDS = WIDE_BOUNDS
+
+
+def gain_env_kwargs(task: str, n_gains: int, params: dict | None = None) -> dict:
+    """The gain-schedule env a tuning runs fixed gain sets of `n_gains` entries in: 3 = PID (the
+    task's own action bounds), 4 = + pressure feedback, 5 = + force feedforward (`PF_BOUNDS`).
+    `params` pins plant parameters (e.g. the nominal plant)."""
+    env_kwargs: dict = {"config": get_task(task).config}
+    if n_gains != 3:
+        env_kwargs["actions"] = wide_actions(n_gains)
+    if params:  # pin the plant: the randomised parameters are replaced by fixed ones
+        env_kwargs["randomize"] = {k: {"dist": "fixed", "low": v} for k, v in params.items()}
+    return env_kwargs
+
+
 def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "startup",
                params: dict | None = None, chunk: int = 4096) -> np.ndarray:
-    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL]) over the plants `seeds`.
+    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`.
 
     `params` pins plant parameters (e.g. the nominal plant); otherwise each seed draws its plant.
     Diverged episodes count with their (large) cost; a non-finite cost counts as 1e6.
     """
     sets = np.atleast_2d(np.asarray(log_gain_sets, float))
-    env_kwargs = {"config": get_task(task).config}
-    if sets.shape[1] == 4:
-        env_kwargs["actions"] = {"pressure_feedback": True}
-    if params:  # pin the plant: the randomised parameters are replaced by fixed ones
-        env_kwargs["randomize"] = {k: {"dist": "fixed", "low": v} for k, v in params.items()}
+    env_kwargs = gain_env_kwargs(task, sets.shape[1], params)
     gain_map = GainMap.from_config(load_env_config(**env_kwargs))
     m = len(seeds)
     costs = np.empty((sets.shape[0], m))
@@ -66,6 +79,36 @@ def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "
         c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
         costs[start:start + block.shape[0]] = c
     return costs.mean(axis=1)
+
+
+def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: dict | None = None,
+              refine_iters: int = 150, step_decades: float = 0.3) -> "TuneResult":
+    """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
+    Nelder-Mead within `PF_BOUNDS` on the plants `seeds`."""
+    starts = np.atleast_2d(np.asarray(starts, float))
+    names = ("kp", "ki", "kd", "kpl", "kff")[:starts.shape[1]]
+    lo = np.log10([PF_BOUNDS[k][0] for k in names])
+    hi = np.log10([PF_BOUNDS[k][1] for k in names])
+    starts = np.clip(starts, lo, hi)
+    start_costs = mean_costs(starts, seeds, task=task, params=params)
+    best = starts[int(np.argmin(start_costs))]
+    n_eval = len(starts)
+
+    def objective(u: np.ndarray) -> float:
+        nonlocal n_eval
+        n_eval += 1
+        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params)[0])
+
+    dim = len(best)
+    simplex = best + np.vstack([np.zeros(dim), step_decades * np.eye(dim)])
+    simplex = np.where(simplex > hi, 2 * best - simplex, simplex)  # step inwards from a bound (KD at 300)
+    res = optimize.minimize(objective, best, method="Nelder-Mead", bounds=list(zip(lo, hi)),
+                            options={"maxiter": refine_iters, "xatol": 0.01, "fatol": 1e-4,
+                                     "initial_simplex": simplex})
+    final, final_cost = np.clip(res.x, lo, hi), float(res.fun)
+    if final_cost > start_costs.min():
+        final, final_cost = best, float(start_costs.min())
+    return TuneResult(final, final_cost, best, float(start_costs.min()), n_eval)
 
 
 @dataclass
@@ -193,13 +236,14 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict
 ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
 
 
-def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS) -> dict:
-    """The estimator's forgetting time constant with the lowest mean cost on `seeds`."""
+def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS, table=None) -> dict:
+    """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
+    `table`, default the task's shipped pid-oracle table)."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
     from millvib_env.control.policies import oracle_table
 
     cfg = load_env_config(get_task(task).config)
-    table, gain_map = oracle_table(task), GainMap.from_config(cfg)
+    table, gain_map = (oracle_table(task) if table is None else table), GainMap.from_config(cfg)
     costs = {}
     for tau in taus:
         ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params)

@@ -1,0 +1,284 @@
+"""`millvib tune`: a task's classical baselines tuned on its tuning seeds, written where the user says.
+
+All on the task's tuning seeds (configs/tasks.yaml), disjoint from its validation and held-out seeds:
+
+* ``pid-nominal``: the nominal plant only (Table 1 c1 and Ct), the way a PID is commissioned, over
+  8 episodes of disturbances (tuning seeds +0..7);
+* ``pid-robust``: one PID for the whole task distribution: 32 plants drawn by the environment
+  (tuning seeds +100..131);
+* ``pid-oracle``: a 5 x 5 grid over (log c1, log Ct), gains tuned per grid plant over 6 episodes of
+  disturbances (tuning seeds +200..205); the policy interpolates log gains between grid points;
+* ``lqr-oracle``: the LQR weights (a grid over q_v, q_p, q_i, r and the friction linearisation, then
+  Nelder-Mead) minimising the mean cost of per-plant LQR designs over the pid-robust plants;
+* ``pid-adaptive``: the estimator's forgetting time constant, over the pid-robust plants;
+* ``pid-pf-robust``: one PID + pressure feedback (KP, KI, KD, KPL) for the whole distribution, on
+  the pid-robust plants: a coarse grid (and the LQR design of the centre plant) then Nelder-Mead;
+* ``pid-pf-ff``: pid-pf-robust plus a feedforward of the load cells' force deviation (KFF), all
+  five gains refined together from pid-pf-robust with KFF on a grid around KPL / Ap;
+* ``pid-pf-oracle``: a per-plant table of PID + pressure-feedback gains on the pid-oracle grid,
+  each refined from pid-pf-robust over the pid-oracle's 6 disturbance draws.
+
+The result goes to ``--out FILE`` (the task's shipped control config with the tuned entries replaced,
+so it can be read back), or with ``--write-config`` into configs/control/<task>.yaml. Either way an
+entry that costs more on its tuning plants than the entry it would replace is kept out and reported,
+unless ``--force`` (a 2-trial Optuna study never replaces a better shipped baseline silently).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from millvib_env.tasks import Task, get_task
+
+__all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
+
+ENTRIES = ("pid-nominal", "pid-robust", "pid-oracle", "lqr-oracle", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
+           "pid-pf-oracle")
+#: the plant of pid-nominal: Table 1's c1 and Ct
+NOMINAL_PLANT = {"c1": 2.25e6, "Ct": 5e-16}
+
+
+def tuning_seeds(task: Task) -> dict[str, list[int]]:
+    """The tuning seeds of each kind of entry (offsets into the task's tuning range)."""
+    first = task.seeds["tuning"].start
+    return {"nominal": list(range(first, first + 8)), "robust": list(range(first + 100, first + 132)),
+            "oracle": list(range(first + 200, first + 206))}
+
+
+def _gain_entry(res, seeds: list[int], how: str) -> dict:
+    return {"gains": res.gains, "log10_gains": [round(float(v), 4) for v in res.log10_gains],
+            "tuning_cost": round(res.cost, 4), "seeds": [seeds[0], seeds[-1]], "how": how}
+
+
+def _pf_starts(task: Task, seeds: list[int]) -> np.ndarray:
+    """Starting points of the PID + pressure-feedback search: a coarse grid over (KP, KI, KPL) with KD
+    at its 300 V s/m limit, and the LQR design of the task's centre plant."""
+    from millvib_env.control.lqr import LQRWeights, lqr_gains
+    from millvib_env.envs.config import load_env_config
+
+    grid = np.stack(np.meshgrid([5.5, 6.0, 6.5], [7.0, 8.0, 9.0], [np.log10(300.0)], [-5.0, -4.5, -4.0, -3.5],
+                                indexing="ij"), axis=-1).reshape(-1, 4)
+    cfg = load_env_config(task.config)
+    centre = {d.name: math.sqrt(d.low * d.high) for d in cfg.randomize if d.name in ("c1", "Ct")}
+    starts = [grid]
+    try:
+        from millvib_env.control.policies import _entry
+
+        weights = LQRWeights(**_entry(task.name, "lqr-oracle")["weights"])
+    except (ValueError, KeyError, TypeError):
+        weights = LQRWeights()
+    try:
+        g = lqr_gains(cfg.base_params.replace(**centre), weights)
+        if np.all(np.isfinite(g)) and np.all(g > 0):
+            starts.append(np.log10(np.minimum(g, [1e7, 1e10, 300.0, 1e-2]))[None, :])
+    except (np.linalg.LinAlgError, ValueError):
+        pass
+    return np.concatenate(starts)
+
+
+def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
+              optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
+              progress: bool = True) -> dict[str, Any]:
+    """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
+    that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
+    run or else from `shipped` (the task's control config)."""
+    from millvib_env.training.tuning import tune, tune_adaptive, tune_from, tune_lqr, tune_optuna
+
+    t = get_task(task)
+    seeds = tuning_seeds(t)
+    todo = list(dict.fromkeys(only or ENTRIES))
+    shipped = dict(shipped or {})
+    out: dict[str, Any] = {}
+
+    def say(msg: str) -> None:
+        if progress:
+            print(msg, flush=True)
+
+    def current(name: str) -> dict:
+        entry = out.get(name, shipped.get(name))
+        if entry is None:
+            raise ValueError(f"tuning needs the {name!r} entry of task {t.name!r}: tune it in the same run "
+                             f"(--only {name} ...)")
+        return entry
+
+    if optuna:
+        for name, s, pinned in (("pid-nominal", seeds["nominal"], NOMINAL_PLANT), ("pid-robust", seeds["robust"], None)):
+            if name in todo:
+                say(f"tuning {name} with Optuna ({optuna}) ...")
+                res = tune_optuna(s, task=t.name, storage=optuna, study_name=f"{t.name}-{name}", n_trials=trials,
+                                  params=pinned)
+                out[name] = {**res, "seeds": [s[0], s[-1]],
+                             "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
+                todo.remove(name)
+    if "pid-nominal" in todo:
+        say("tuning pid-nominal on the nominal plant ...")
+        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT)
+        out["pid-nominal"] = _gain_entry(res, seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, "
+                                                                "Ct = 5e-16), 8 disturbance draws")
+    if "pid-robust" in todo:
+        say("tuning pid-robust over 32 tuning plants ...")
+        res = tune(seeds["robust"], task=t.name)
+        out["pid-robust"] = _gain_entry(res, seeds["robust"], "one set of gains minimising the mean cost over 32 "
+                                                              "plants of the task")
+    if from_task:
+        for name in ("pid-oracle", "lqr-oracle", "pid-pf-oracle"):
+            if name in todo:
+                out[name] = {"from_task": get_task(from_task).name}
+                todo.remove(name)
+    if "pid-oracle" in todo:
+        from tqdm.auto import tqdm
+
+        c1_grid, ct_grid, cells = _oracle_grid(t, grid)
+        log_gains, costs = np.zeros((grid, grid, 3)), np.zeros((grid, grid))
+        for i, j in tqdm(cells, desc="tuning pid-oracle grid", unit="plant", disable=not progress):
+            res = tune(seeds["oracle"], task=t.name, params={"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])},
+                       refine_iters=40)
+            log_gains[i, j], costs[i, j] = res.log10_gains, res.cost
+        out["pid-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["oracle"],
+                                         "gains tuned per grid plant over 6 disturbance draws; log10 gains "
+                                         "interpolated bilinearly in (log c1, log Ct) between grid points")
+    if "lqr-oracle" in todo:
+        say("tuning lqr-oracle weights ...")
+        res = tune_lqr(seeds["robust"], task=t.name)
+        out["lqr-oracle"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
+                             "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant "
+                                    "designs over 32 tuning plants"}
+    if "pid-adaptive" in todo:
+        say("tuning pid-adaptive forgetting time ...")
+        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle")))
+        out["pid-adaptive"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
+                               "how": "estimator forgetting time constant with the lowest mean cost over 32 "
+                                      "tuning plants; gains from the pid-oracle table at the estimate"}
+    if "pid-pf-robust" in todo:
+        say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
+        res = tune_from(_pf_starts(t, seeds["robust"]), seeds["robust"], task=t.name, refine_iters=200)
+        out["pid-pf-robust"] = _gain_entry(res, seeds["robust"], (
+            "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
+            "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5) and the LQR "
+            "design of the centre plant, refined by Nelder-Mead (200 iterations, KD <= 300)"))
+        say(f"  {out['pid-pf-robust']['gains']} cost {res.cost:.4f}")
+    if "pid-pf-ff" in todo:
+        say("tuning pid-pf-ff (pid-pf-robust + force feedforward) over 32 tuning plants ...")
+        base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
+        ap = _area(t)
+        kff = np.log10(10.0 ** base[3] / ap * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
+        res = tune_from(np.array([np.r_[base, k] for k in kff]), seeds["robust"], task=t.name, refine_iters=250)
+        out["pid-pf-ff"] = _gain_entry(res, seeds["robust"], (
+            "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
+            "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "
+            "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
+        say(f"  {out['pid-pf-ff']['gains']} cost {res.cost:.4f}")
+    if "pid-pf-oracle" in todo:
+        from tqdm.auto import tqdm
+
+        base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
+        c1_grid, ct_grid, cells = _oracle_grid(t, grid)
+        log_gains, costs = np.zeros((grid, grid, 4)), np.zeros((grid, grid))
+        for i, j in tqdm(cells, desc="tuning pid-pf-oracle grid", unit="plant", disable=not progress):
+            res = tune_from(base[None, :], seeds["oracle"], task=t.name, refine_iters=80,
+                            params={"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
+            log_gains[i, j], costs[i, j] = res.log10_gains, res.cost
+        out["pid-pf-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["oracle"], (
+            "PID + pressure-feedback gains tuned per grid plant over 6 disturbance draws (Nelder-Mead from "
+            "pid-pf-robust, 80 iterations); log10 gains interpolated bilinearly in (log c1, log Ct)"))
+    return out
+
+
+def _area(t: Task) -> float:
+    from millvib_env.envs.config import load_env_config
+
+    return float(load_env_config(t.config).base_params.Ap)
+
+
+def _oracle_grid(t: Task, n: int):
+    """The oracle tables' grid: n x n over the paper's (log c1, log Ct) ranges (the startup task's
+    draw), whatever the task: a table is a property of plants, and the `change` task's plants move
+    over the whole range."""
+    from millvib_env.envs.config import load_env_config
+
+    dists = {d.name: d for d in load_env_config(get_task("startup").config).randomize}
+    c1_grid = np.geomspace(dists["c1"].low, dists["c1"].high, n)
+    ct_grid = np.geomspace(dists["Ct"].low, dists["Ct"].high, n)
+    return c1_grid, ct_grid, [(i, j) for i in range(n) for j in range(n)]
+
+
+def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
+    return {"c1_grid": [float(v) for v in c1_grid], "ct_grid": [float(v) for v in ct_grid],
+            "log10_gains": np.round(log_gains, 4).tolist(), "tuning_costs": np.round(costs, 4).tolist(),
+            "seeds": [seeds[0], seeds[-1]], "how": how}
+
+
+def _table(entry: dict):
+    from millvib_env.control.policies import GainTable, oracle_table
+
+    if "from_task" in entry:
+        return oracle_table(entry["from_task"])
+    return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
+
+
+def _cost(entry: dict | None) -> float | None:
+    """An entry's tuning cost (a table's: its mean over the grid), None where it has none."""
+    if not isinstance(entry, dict):
+        return None
+    if "tuning_cost" in entry:
+        return float(entry["tuning_cost"])
+    if "tuning_costs" in entry and isinstance(entry["tuning_costs"], list):
+        return float(np.mean(entry["tuning_costs"]))
+    return None
+
+
+def merge_entries(shipped: dict, tuned: dict, *, force: bool = False) -> tuple[dict, list[str]]:
+    """`shipped` with the `tuned` entries in; an entry dearer on its tuning plants than the one it
+    would replace is kept out unless `force`. Returns the merged config and a line per decision."""
+    merged, notes = dict(shipped), []
+    for name, entry in tuned.items():
+        old, new = _cost(shipped.get(name)), _cost(entry)
+        if old is not None and new is not None and new > old and not force:
+            notes.append(f"{name}: kept the existing entry (tuning cost {old:.4g}); this run's {new:.4g} is worse "
+                         "(--force replaces it)")
+            continue
+        merged[name] = entry
+        notes.append(f"{name}: {'new' if old is None else f'replaces {old:.4g} with'} "
+                     f"{'' if new is None else f'{new:.4g}'}".rstrip())
+    return merged, notes
+
+
+def tune_from_cli(args) -> int:
+    import yaml
+
+    from millvib_env._paths import check_output, config_dir, write_text_atomic
+    from millvib_env._yaml import load_yaml
+
+    t = get_task(args.task)
+    if bool(args.out) == bool(args.write_config):
+        raise ValueError("say where the result goes: --out FILE (a copy of the task's control config with the "
+                         "tuned entries) or --write-config (configs/control/<task>.yaml itself), not both")
+    if args.trials < 1:
+        raise ValueError(f"--trials {args.trials} is invalid: a whole number >= 1")
+    if not 2 <= args.grid <= 12:
+        raise ValueError(f"--grid {args.grid} is invalid: 2-12 points per axis")
+    shipped_path = config_dir() / "control" / f"{t.name}.yaml"
+    target = shipped_path if args.write_config else Path(args.out)
+    check_output(str(target), "--out")
+    shipped = load_yaml(shipped_path) if shipped_path.is_file() else {}
+    if not isinstance(shipped, dict):
+        raise ValueError(f"{shipped_path} must be a mapping of entries")
+    start = time.time()
+    tuned = tune_task(t.name, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
+                      trials=args.trials, shipped=shipped, progress=not args.quiet)
+    merged, notes = merge_entries(shipped, tuned, force=args.force)
+    merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um, gain-schedule env "
+                              f"config {t.config}, gains held fixed")
+    merged["wall_time_s"] = round(time.time() - start, 1)
+    header = (f"# Written by `millvib tune --task {t.name}` (millvib_env.training.tune_task: the method of each "
+              "entry is in its `how`).\n")
+    write_text_atomic(target, header + yaml.safe_dump(merged, sort_keys=False, width=110))
+    for line in notes:
+        print(line)
+    print(f"wrote {target} ({merged['wall_time_s']} s)")
+    return 0

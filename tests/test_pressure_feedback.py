@@ -1,0 +1,98 @@
+"""Pressure feedback, force feedforward and the relative gain action (the classical controllers to beat)."""
+import numpy as np
+import pytest
+
+import millvib_env
+from millvib_env.control.policies import REFERENCE, load_controller, named_gains
+from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import load_env_config
+from millvib_env.training.evaluate import run_episodes
+
+BASE = [1.15e6, 8.0e8, 300.0, 1.5e-4]
+
+
+def _rel_config(decades=(1.0, 1.0, 0.0, 1.0), base=BASE, **kw):
+    return load_env_config("rolling", actions={"pressure_feedback": True,
+                                               "relative": {"base": list(base), "decades": list(decades)}}, **kw)
+
+
+def test_the_relative_map_gives_exactly_the_base_gains_at_zero_and_clips_offsets():
+    gm = GainMap.from_config(_rel_config())
+    assert gm.relative and gm.dim == 4
+    assert np.array_equal(gm.gains(np.zeros(4)), np.array(BASE))
+    g = gm.gains(np.array([5.0, -7.0, 1.0, 1.0]))  # outside the box: clipped to +-1 decade
+    assert np.allclose(g, [BASE[0] * 10, BASE[1] / 10, BASE[2], BASE[3] * 10])
+    assert np.allclose(gm.action(gm.gains(np.array([0.3, -0.2, 0.0, 0.5]))), [0.3, -0.2, 0.0, 0.5])
+
+
+def test_the_relative_action_at_zero_runs_the_same_trajectory_as_the_fixed_policy_with_its_gains():
+    from millvib_env.control.policies import FixedGainPolicy
+
+    fixed = FixedGainPolicy("pf", BASE, None)
+    seeds = [120001, 120002, 120003]
+    a = run_episodes(fixed, seeds, task="rolling")
+    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 3, seed=0, config="rolling",
+                                    actions={"pressure_feedback": True, "relative": {"base": BASE}},
+                                    monitor=False)
+    venv._seeds = seeds
+    venv.reset()
+    done = np.zeros(3, bool)
+    infos = None
+    while not done.all():
+        _, _, d, infos = venv.step(np.zeros((3, 4)))
+        done |= d
+    for rec, info in zip(a, infos):
+        assert rec["severity_mm_s"] == info["severity"] and rec["tracking_rms_um"] == info["tracking_rms_um"]
+
+
+def test_a_named_base_is_refused_by_the_env_and_resolved_by_train():
+    from millvib_env.training.train import resolve_named_gains
+
+    with pytest.raises(ValueError, match="actions.relative.base"):
+        load_env_config("rolling", actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
+    kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
+                                          "residual_gains": "pid-pf-ff"}}, "rolling")
+    assert kw["actions"]["relative"]["base"] == named_gains("rolling", "pid-pf-robust")
+    assert len(kw["actions"]["residual_gains"]) == 5
+    with pytest.raises(ValueError, match="gains 'bogus' unknown"):
+        resolve_named_gains({"actions": {"residual_gains": "bogus"}}, "rolling")
+
+
+def test_a_base_of_the_wrong_length_is_an_error():
+    with pytest.raises(ValueError, match="needs 4 gains"):
+        GainMap.from_config(_rel_config(base=BASE[:3], decades=(1, 1, 0)))
+
+
+def test_force_feedforward_is_off_by_default_and_the_force_observation_is_an_option():
+    venv = millvib_env.make_vec_env("MillVib-Valve-v0", 2, seed=0, config="rolling", residual=True,
+                                    observation={"force": True})
+    assert venv.core.obs_names[-1] == "load_force"
+    obs = venv.reset()
+    for _ in range(50):
+        obs, *_ = venv.step(np.zeros((2, 1)))
+    assert np.all(np.isfinite(obs)) and np.any(obs[:, -1] != 0)  # eccentricity moves the force
+
+
+@pytest.mark.parametrize("task", ["rolling", "change"])
+def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plants(task):
+    from millvib_env.control.policies import _entry
+
+    assert REFERENCE == "pid-pf-robust"
+    assert _entry(task, "pid-pf-robust")["tuning_cost"] < _entry(task, "pid-robust")["tuning_cost"]
+    assert len(named_gains(task, "pid-pf-robust")) == 4 and len(named_gains(task, "pid-pf-ff")) == 5
+
+
+def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant():
+    from millvib_env.analysis.linear import spectral_abscissa
+    from millvib_env.control.policies import _entry
+    from millvib_env.params import PIDGains
+
+    for task in ("startup", "rolling", "change"):
+        gains = PIDGains(*named_gains(task, "pid-pf-robust"))
+        entry = _entry(task, "pid-oracle")
+        base = load_env_config(task).base_params
+        for c1 in entry["c1_grid"]:
+            for ct in entry["ct_grid"]:
+                for friction in ("stick", "sliding"):
+                    sa = spectral_abscissa(base.replace(c1=c1, Ct=ct), gains, friction=friction, integral="settled")
+                    assert sa < 0, (task, c1, ct, friction, sa)
