@@ -96,3 +96,33 @@ def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant
                 for friction in ("stick", "sliding"):
                     sa = spectral_abscissa(base.replace(c1=c1, Ct=ct), gains, friction=friction, integral="settled")
                     assert sa < 0, (task, c1, ct, friction, sa)
+
+
+PLAIN_LOOP_NAMES = ["pid-paper", "pid-robust", "pid-oracle", "pid-adaptive", "lqr-oracle", "pid-pf-robust",
+                    "pid-pf-ff", "pid-pf-oracle"]
+
+
+def _plain_loop_cost(ctrl, seed: int) -> float:
+    from millvib_env.training.evaluate import episode_cost
+
+    env = ctrl.make_env()
+    obs, info = env.reset(seed=seed)
+    done = False
+    while not done:
+        action, _ = ctrl.predict(obs)
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    return episode_cost(info["severity"], info["tracking_rms_um"])
+
+
+@pytest.mark.parametrize("task", ["startup", "rolling"])
+def test_every_controller_gives_the_benchmark_cost_in_a_plain_gymnasium_loop(task):
+    from millvib_env.control.policies import list_agents
+    from millvib_env.tasks import get_task
+
+    seed = get_task(task).seeds["heldout"].start + 7
+    agents = list_agents(task)
+    for name in PLAIN_LOOP_NAMES + agents:
+        ctrl = load_controller(name, task)
+        expected = run_episodes(load_controller(name, task), [seed], task=task)[0]["cost"]
+        assert _plain_loop_cost(ctrl, seed) == pytest.approx(expected, rel=1e-9), name

@@ -92,6 +92,29 @@ def test_the_json_schema_and_the_comparisons(tmp_path):
     assert "paired_vs_pid_robust" not in data["controllers"]["pid-robust"]
     assert data["controllers"]["pid-oracle"]["normalized_score"]["score"] == pytest.approx(1.0)
     assert data["controllers"]["pid-robust"]["normalized_score"]["score"] == pytest.approx(0.0)
+    # the reference (pid-pf-robust by default) is run although --controllers leaves it out
+    assert data["reference"] == "pid-pf-robust" and "pid-pf-robust" in data["controllers"]
+    keys = {"cost_diff_rel", "ci", "p_improvement", "cvar20_diff_rel", "cvar20_ci"}
+    for name, s in data["controllers"].items():
+        others = {"pid-pf-robust", "pid-robust"} - {name}
+        assert set(s["paired"]) == others, name
+        assert all(set(d) == keys for d in s["paired"].values())
+    paper = data["controllers"]["pid-paper"]
+    assert paper["paired"]["pid-robust"] == paper["paired_vs_pid_robust"]
+    assert paper["paired"]["pid-pf-robust"]["cost_diff_rel"] > 0  # the paper's PID is the dearer
+
+
+def test_the_reference_can_be_chosen_and_an_unknown_one_is_refused_in_one_line(tmp_path, capsys):
+    out = tmp_path / "b.json"
+    assert cli_main(["benchmark", "--task", "rolling", "--controllers", "pid-paper", "--reference", "pid-robust",
+                     "--episodes", "3", "--quiet", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["reference"] == "pid-robust" and set(data["controllers"]) == {"pid-robust", "pid-paper"}
+    capsys.readouterr()
+    assert cli_main(["benchmark", "--task", "rolling", "--reference", "pid-bogus", "--episodes", "3",
+                     "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pid-bogus" in err[0]
 
 
 def test_the_same_seed_gives_the_same_json_bytes(tmp_path):

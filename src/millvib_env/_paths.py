@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import tempfile
+import time
 from importlib import resources
 from pathlib import Path
 from typing import Iterator
@@ -59,27 +60,152 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             tmp_path.unlink()
 
 
+#: the file that marks a folder as a command's result: the command and every entry it wrote
+RESULT_MARKER = ".millvib-result.json"
+#: debris of an interrupted folder write: .<name>.<random>.tmp (the new result) or .old (the previous one)
+_OWNER = ".owner"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _owner_pid(folder: Path) -> int | None:
+    try:
+        return int((folder / _OWNER).read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def clean_debris(path: str | os.PathLike) -> None:
+    """Remove what an interrupted (even SIGKILLed) write of the folder `path` left beside it: its
+    temporary folders whose writing process is gone; where `path` itself is missing because the
+    run died between moving the old result aside and putting the new one in place, the old result
+    goes back first. A write still running (its process alive) is left alone."""
+    import shutil
+
+    path = Path(path)
+    if not path.parent.is_dir():
+        return
+    for kind in (".old", ".tmp"):
+        for debris in sorted(path.parent.glob(f".{glob_escape(path.name)}.*{kind}")):
+            pid = _owner_pid(debris)
+            if not debris.is_dir() or (pid is not None and _alive(pid)):
+                continue
+            if pid is None and time.time() - debris.stat().st_mtime < 60:
+                continue  # just created by a writer that has not yet marked it
+            if kind == ".old" and (debris / "x").is_dir() and not path.exists():
+                os.replace(debris / "x", path)
+            shutil.rmtree(debris, ignore_errors=True)
+
+
+def glob_escape(name: str) -> str:
+    import glob
+
+    return glob.escape(name)
+
+
+def _inside(a: Path, b: Path) -> bool:
+    """a is b or lies inside b (both resolved)."""
+    return a == b or b in a.parents
+
+
+def check_result_folder(path: str | os.PathLike | None, flag: str, command: str, *,
+                        others: tuple = (), own_files: frozenset | None = None) -> Path | None:
+    """Check, before any work, that the result folder `path` may be (re)written by `command` as a
+    whole: it is new, empty, or holds only a previous result of the same command (its
+    `RESULT_MARKER` lists every entry in it, or, with `own_files`, every entry is one of those
+    names); it is neither the working directory nor one of its ancestors; and no other path the same
+    run writes (`others`: (flag, path) pairs) lies inside it or is it. ValueError naming the
+    flag otherwise: a user's files are never replaced."""
+    p = check_output(path, flag, folder=True)
+    if p is None:
+        return None
+    where = p.resolve()
+    cwd = Path.cwd().resolve()
+    if _inside(cwd, where):
+        raise ValueError(f"{flag} {path} is the working directory or contains it; a result folder is replaced as a "
+                         "whole: name a new folder (e.g. results/run1)")
+    for other_flag, other in others:
+        if other is None:
+            continue
+        o = Path(other).resolve()
+        if _inside(o, where):
+            raise ValueError(f"{other_flag} {other} lies inside {flag} {path}, which is replaced as a whole: "
+                             f"{other_flag} must lie outside it")
+    clean_debris(p)
+    if not p.is_dir():
+        return p
+    entries = sorted(e.name for e in p.iterdir())
+    if not entries:
+        return p
+    if own_files is not None:
+        foreign = [e for e in entries if e not in own_files]
+    else:
+        marker = _read_marker(p)
+        if marker is None or marker.get("command") != command:
+            what = "no millvib result" if marker is None else f"a `millvib {marker.get('command')}` result"
+            raise ValueError(f"{flag} {path} holds {len(entries)} entries and is {what} ({', '.join(entries[:4])}"
+                             f"{', ...' if len(entries) > 4 else ''}); it would be replaced as a whole: name a new "
+                             "or empty folder")
+        foreign = [e for e in entries if e != RESULT_MARKER and e not in marker.get("entries", [])]
+    if foreign:
+        raise ValueError(f"{flag} {path} holds entries this command did not write ({', '.join(foreign[:4])}"
+                         f"{', ...' if len(foreign) > 4 else ''}); it would be replaced as a whole: move them or "
+                         "name a new folder")
+    return p
+
+
+def _read_marker(folder: Path) -> dict | None:
+    import json
+
+    try:
+        data = json.loads((folder / RESULT_MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
 @contextlib.contextmanager
-def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False) -> Iterator[Path]:
+def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False,
+                  command: str | None = None) -> Iterator[Path]:
     """Yield a temporary folder beside `path`; on success put it in place of `path` as a whole.
 
     `keep_existing` starts the temporary folder as a copy of `path` (to update some of its files).
-    A run interrupted before the end leaves `path` as it was; two runs at once each replace the whole
-    folder, so it holds one run's files, never a mix.
+    `command` writes `RESULT_MARKER` (the command and the entries) into the result, so a later run of
+    the same command knows the folder for its own (`check_result_folder`). A run interrupted before
+    the end leaves `path` as it was, and its temporary folder is removed (on SIGINT and SIGTERM at
+    once; after SIGKILL by the next write of `path`, `clean_debris`); two runs at once each replace
+    the whole folder, so it holds one run's files, never a mix.
     """
+    import json
     import shutil
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    clean_debris(path)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    (tmp / _OWNER).write_text(str(os.getpid()))
     try:
         if keep_existing and path.is_dir():
             shutil.copytree(path, tmp, dirs_exist_ok=True)
+            (tmp / _OWNER).write_text(str(os.getpid()))
         yield tmp
+        (tmp / _OWNER).unlink()
+        if command is not None:
+            entries = sorted(e.name for e in tmp.iterdir() if e.name != RESULT_MARKER)
+            (tmp / RESULT_MARKER).write_text(json.dumps({"command": command, "entries": entries}, indent=1))
         os.chmod(tmp, 0o777 & ~_umask())
         old = None
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            (old / _OWNER).write_text(str(os.getpid()))
             os.replace(path, old / "x")
         os.replace(tmp, path)
         if old is not None:

@@ -122,9 +122,9 @@ def _write_run_csv(run, path: Path) -> None:
 
 
 def _cmd_reproduce(args) -> int:
-    from millvib_env._paths import check_output
+    from millvib_env._paths import check_result_folder
 
-    check_output(args.out, "--out", folder=True)
+    check_result_folder(args.out, "--out", "reproduce")
     from millvib_env.analysis.paper import reproduce
 
     summary = reproduce(args.out, t_end=args.t_end, method=args.method, maps=not args.no_maps,
@@ -355,6 +355,16 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    import signal
+
+    def _terminated(signum, frame):  # SIGTERM unwinds like Ctrl-C: temporary result folders are removed
+        raise SystemExit(128 + signum)
+
+    if hasattr(signal, "SIGTERM"):
+        try:
+            signal.signal(signal.SIGTERM, _terminated)
+        except ValueError:  # not the main thread (main() called from a worker)
+            pass
     try:
         return int(args.func(args) or 0)
     except ValueError as err:

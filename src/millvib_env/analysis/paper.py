@@ -287,7 +287,7 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
     from millvib_env._paths import atomic_folder
 
     final = Path(out_dir)
-    with atomic_folder(final, keep_existing=solver_study_only) as out:
+    with atomic_folder(final, keep_existing=solver_study_only, command="reproduce") as out:
         summary = _reproduce_into(out, t_end, method, maps, map_resolution, progress, solver_study,
                                   solver_study_only)
     summary["files"] = [str(final / Path(f).name) for f in summary["files"]]

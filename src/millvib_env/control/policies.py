@@ -24,6 +24,7 @@ import re
 from pathlib import Path
 from typing import Any, Sequence
 
+import gymnasium as gym
 import numpy as np
 
 from millvib_env._paths import agents_dir, config_dir
@@ -34,7 +35,7 @@ from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
 __all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "LQRPolicy", "AgentPolicy", "GainTable",
-           "load_controller", "baseline_names", "named_gains", "REFERENCE", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
+           "load_controller", "baseline_names", "ControllerLoop", "named_gains", "REFERENCE", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
 
 #: every baseline by name, with what it is
 BASELINES = {
@@ -66,6 +67,21 @@ class Controller:
     #: True: the evaluation loop asks the env for every step's measured signals (info["signals"])
     needs_signals = False
     task: str | None = None
+
+    def env_kwargs_for(self, task: str | None = None, env_kwargs: dict | None = None) -> dict:
+        """The environment keyword arguments this controller runs with on `task`: the task's config,
+        then the controller's own settings (its action, observation, training reward), then `env_kwargs`."""
+        from millvib_env.envs.config import _merge
+
+        kwargs = {"config": get_task(task).config} if task is not None else {}
+        return _merge(_merge(kwargs, self.env_kwargs), env_kwargs or {})
+
+    def make_env(self, **env_kwargs):
+        """The Gymnasium environment this controller runs in (its task's config and its own settings,
+        the signals it measures switched on), wrapped so that the calls it needs on reset and step
+        are made for it: a plain loop ``obs, info = env.reset(seed=s)``, ``action, _ =
+        ctrl.predict(obs)``, ``env.step(action)`` gives the benchmark's episode on seed s."""
+        return ControllerLoop(gym.make(self.env_id, **self.env_kwargs_for(self.task, env_kwargs)), self)
 
     def on_reset(self, infos: Sequence[dict], indices: Sequence[int]) -> None:
         """Called with the reset infos of the environments that just started an episode."""
@@ -142,8 +158,10 @@ class PerEnvGains(Controller):
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         if getattr(self, "_actions", None) is None:
-            raise ValueError(f"{self.name} needs the episode's true parameters: call on_reset(infos, indices) "
-                             "after every reset (the benchmark's evaluation loop does)")
+            what = "the measured signals" if self.needs_signals else "the episode's true c1 and Ct"
+            raise ValueError(f"{self.name} reads {what} through on_reset(infos, indices) after every reset and "
+                             "on_step(infos) after every step: run it in env = ctrl.make_env(), which makes those "
+                             "calls (the benchmark's evaluation loop makes them too)")
         obs = np.asarray(observation)
         return (self._actions[0].copy() if obs.ndim == 1 else self._actions[: obs.shape[0]].copy()), state
 
@@ -261,11 +279,42 @@ class AgentPolicy(Controller):
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return obs if self.obs_stats is None else self.obs_stats.normalize(obs)
 
+    def on_reset(self, infos, indices) -> None:
+        self._own_start = True  # a plain loop's recurrent state starts afresh with the episode
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = self.normalize(np.asarray(observation, dtype=np.float32))
         if self.recurrent:
+            if state is None and episode_start is None and obs.ndim == 1:
+                # a plain Gymnasium loop (ctrl.make_env()): the agent keeps its own LSTM state
+                start = np.array([getattr(self, "_own_start", True)])
+                action, self._own_state = self.model.predict(
+                    obs, state=None if start[0] else getattr(self, "_own_state", None), episode_start=start,
+                    deterministic=deterministic)
+                self._own_start = False
+                return action, None
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
         return self.model.predict(obs, deterministic=deterministic)
+
+
+class ControllerLoop(gym.Wrapper):
+    """A controller's environment for a plain Gymnasium loop (`Controller.make_env`): switches on the
+    signals it measures and calls its on_reset / on_step hooks, as the benchmark's evaluation loop does."""
+
+    def __init__(self, env: gym.Env, controller: Controller):
+        super().__init__(env)
+        self.controller = controller
+        env.unwrapped.core.record_signals = bool(controller.needs_signals)
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self.controller.on_reset([info], [0])
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.controller.on_step([info])
+        return obs, reward, terminated, truncated, info
 
 
 def load_control_config(task: str = "startup") -> dict[str, Any]:
@@ -273,16 +322,16 @@ def load_control_config(task: str = "startup") -> dict[str, Any]:
     name = get_task(task).name
     path = config_dir() / "control" / f"{name}.yaml"
     if not path.is_file():
-        raise ValueError(f"no tuned baselines for task {name!r}: {path} is missing (run scripts/tune_pid.py "
-                         f"--task {name})")
+        raise ValueError(f"no tuned baselines for task {name!r}: {path} is missing (run millvib tune "
+                         f"--task {name} --write-config)")
     return load_yaml(path)
 
 
 def _entry(task: str, name: str) -> dict:
     data = load_control_config(task)
     if name not in data:
-        raise ValueError(f"configs/control/{get_task(task).name}.yaml has no entry {name!r} (run "
-                         f"scripts/tune_pid.py --task {get_task(task).name})")
+        raise ValueError(f"configs/control/{get_task(task).name}.yaml has no entry {name!r} (run millvib tune "
+                         f"--task {get_task(task).name} --only {name} --write-config)")
     entry = data[name]
     if "from_task" in entry:
         return _entry(entry["from_task"], name)

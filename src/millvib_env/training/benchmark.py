@@ -312,7 +312,7 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
     (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files."""
     from millvib_env._paths import atomic_folder
 
-    with atomic_folder(out) as tmp:
+    with atomic_folder(out, command="benchmark") as tmp:
         files = _write_files(result, tmp)
     return [out / f.name for f in files]
 
@@ -473,10 +473,10 @@ def _plot_bars(result: dict, path: Path) -> Path:
 
 
 def benchmark_from_cli(args) -> int:
-    from millvib_env._paths import check_output
+    from millvib_env._paths import check_output, check_result_folder
 
     check_output(args.json, "--json")
-    check_output(args.out, "--out", folder=True)
+    check_result_folder(args.out, "--out", "benchmark", others=(("--json", args.json),))
     if args.episodes is not None and args.episodes < 1:
         raise ValueError(f"--episodes {args.episodes} is invalid: at least 1")
     if args.seed < 0:

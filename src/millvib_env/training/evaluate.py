@@ -29,12 +29,8 @@ def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | No
 
 
 def env_kwargs_for(controller: Controller, task: str | None = None, env_kwargs: dict | None = None) -> dict:
-    """The environment keyword arguments a controller runs with on a task: the task's config, then
-    the controller's own settings (e.g. its training reward or pressure feedback), then `env_kwargs`."""
-    from millvib_env.envs.config import _merge
-
-    kwargs = {"config": get_task(task).config} if task is not None else {}
-    return _merge(_merge(kwargs, controller.env_kwargs), env_kwargs or {})
+    """The environment keyword arguments a controller runs with on a task (`Controller.env_kwargs_for`)."""
+    return controller.env_kwargs_for(task, env_kwargs)
 
 
 def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,

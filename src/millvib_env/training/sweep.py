@@ -78,7 +78,7 @@ def write_sweep(result: dict, out: str | Path) -> list[Path]:
 
     out = Path(out)
     params = result["summary"]["params"]
-    with atomic_folder(out) as tmp:
+    with atomic_folder(out, command="sweep") as tmp:
         buf = io.StringIO()
         fields = ["controller", "seed", *dict.fromkeys(["c1", "Ct", *params]), "cost", "severity_mm_s",
                   "tracking_rms_um", "diverged"]
@@ -126,10 +126,10 @@ def _maps(result: dict):
 
 
 def sweep_from_cli(args) -> int:
-    from millvib_env._paths import check_output
+    from millvib_env._paths import check_result_folder
     from millvib_env.training.benchmark import format_table
 
-    check_output(args.out, "--out", folder=True)
+    check_result_folder(args.out, "--out", "sweep")
     result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
                        ray=args.ray, processes=args.jobs, progress=not args.quiet)
     s = result["summary"]

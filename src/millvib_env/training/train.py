@@ -33,6 +33,8 @@ from millvib_env.training.manifest import EVAL_CURVE
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
 ALGOS = ("ppo", "sac", "recurrentppo")
+#: the files of an agent folder (`--save-dir`), which a new training of it replaces
+AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
 
@@ -67,6 +69,51 @@ def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
     if isinstance(rel, dict) and isinstance(rel.get("base"), str):
         acts["relative"] = {**rel, "base": named_gains(task, rel["base"])}
     return {**env_kwargs, "actions": acts}
+
+
+def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **kwargs):
+    """An EvalCallback (`base`) that evaluates on the same plants every time (its env reseeded with
+    `eval_seed` before each evaluation), keeps the observation statistics of its best policy beside
+    it (best_dir/vecnormalize.npz), and can evaluate the starting policy (`evaluate_start`)."""
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
+
+    from millvib_env.training.normalization import STATS_FILE, save_obs_stats
+
+    class FixedPlantsEval(base):
+        best_timesteps = 0
+
+        def _on_step(self) -> bool:
+            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
+                self.eval_env.seed(eval_seed)
+                before = self.best_mean_reward
+                ok = super()._on_step()
+                if self.best_mean_reward > before:
+                    self._keep_best(self.num_timesteps)
+                return ok
+            return super()._on_step()
+
+        def _keep_best(self, timesteps: int) -> None:
+            self.best_timesteps = timesteps
+            if isinstance(venv, VecNormalize):
+                best_dir.mkdir(parents=True, exist_ok=True)
+                save_obs_stats(venv, best_dir / STATS_FILE)
+
+        def evaluate_start(self, model) -> None:
+            if isinstance(venv, VecNormalize):
+                sync_envs_normalization(venv, self.eval_env)
+            self.eval_env.seed(eval_seed)
+            rewards, _ = evaluate_policy(model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
+                                         deterministic=True)
+            self.best_mean_reward = float(np.mean(rewards))
+            self.evaluations_timesteps.append(0)  # the curve starts at the starting policy
+            self.evaluations_results.append([float(r) for r in rewards])
+            self.evaluations_length.append([0] * len(rewards))
+            best_dir.mkdir(parents=True, exist_ok=True)
+            model.save(best_dir / "best_model.zip")
+            self._keep_best(0)
+
+    return FixedPlantsEval(eval_env, **kwargs)
 
 
 def _checkpoints(folder: Path) -> list[tuple[Path, Path, int]]:
@@ -131,8 +178,15 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
-          progress: bool = True, command: str | None = None, note: str | None = None) -> dict:
-    """Train one agent; returns its model card (also written to the run folder)."""
+          progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last") -> dict:
+    """Train one agent; returns its model card (also written to the run folder).
+
+    Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
+    time), so the evaluation curve compares policies, not draws. `select`: ship the final policy
+    ("last") or the best evaluated one ("best", the starting policy included, with the observation
+    statistics of its moment)."""
+    if select not in ("last", "best"):
+        raise ValueError(f"--select {select!r} is invalid: 'last' or 'best'")
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
@@ -172,23 +226,34 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     if norm_kwargs is not None:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
                                                                                 if k not in ("norm_reward",)})
-    eval_cb = EvalCallback(eval_env, n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
-                           best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
-                           verbose=0)
+    eval_cb = _fixed_plants_eval(EvalCallback, venv, eval_env, eval_seed, run / "best",
+                                 n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
+                                 best_model_save_path=str(run / "best"), log_path=str(run / "eval"),
+                                 deterministic=True, verbose=0)
     if resume:
         _continue_evaluations(eval_cb, run / "eval")
+    elif select == "best":
+        eval_cb.evaluate_start(model)
     callbacks = CallbackList([
         CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True), eval_cb])
     start = time.time()
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
-    model.save(run / "model.zip")
-    if isinstance(venv, VecNormalize):
-        from millvib_env.training.normalization import STATS_FILE, save_obs_stats
+    from millvib_env.training.normalization import STATS_FILE, save_obs_stats
 
+    if isinstance(venv, VecNormalize):
         venv.save(str(run / "vecnormalize.pkl"))
-        save_obs_stats(venv, run / STATS_FILE)
+    selected = None
+    if select == "best" and (run / "best" / "best_model.zip").is_file():
+        shutil.copyfile(run / "best" / "best_model.zip", run / "model.zip")
+        if isinstance(venv, VecNormalize):
+            shutil.copyfile(run / "best" / STATS_FILE, run / STATS_FILE)
+        selected = {"timesteps": int(eval_cb.best_timesteps), "mean_reward": float(eval_cb.best_mean_reward)}
+    else:
+        model.save(run / "model.zip")
+        if isinstance(venv, VecNormalize):
+            save_obs_stats(venv, run / STATS_FILE)
     evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
@@ -199,6 +264,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
                                 for k, v in hp.items()},
             "policy": policy, "normalize": repr(normalize),
             "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
+    if selected is not None:
+        card["selected"] = {**selected, "how": f"the best of every evaluation on the same {n_eval_episodes} "
+                                              "evaluation plants, the starting policy included"}
     if note:
         card["note"] = note
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
@@ -260,10 +328,19 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
 
 
 def train_from_cli(args) -> int:
-    from millvib_env._paths import check_output
+    from millvib_env._paths import check_output, check_result_folder
 
-    check_output(args.save_dir, "--save-dir", folder=True)
     check_output(args.log_dir, "--log-dir", folder=True)
+    if args.save_dir is not None:
+        for seed in (args.seeds or [args.seed]):  # each seed's folder is replaced as a whole
+            dest = Path(args.save_dir) / f"seed-{seed}" if args.seeds else Path(args.save_dir)
+            check_result_folder(dest, "--save-dir", "train", others=(("--log-dir", args.log_dir),),
+                                own_files=AGENT_FILES)
+            inside_run = Path(dest).resolve().relative_to(Path(args.log_dir).resolve()).parts[:1] \
+                if Path(args.log_dir).resolve() in Path(dest).resolve().parents else ()
+            if inside_run and inside_run[0].startswith(f"{args.algo}_"):
+                raise ValueError(f"--save-dir {dest} lies inside the run folder {Path(args.log_dir) / inside_run[0]} "
+                                 "(checkpoints, logs), which it would replace: put it outside --log-dir's run folders")
     for flag, value in (("--n-timesteps", args.n_timesteps), ("--eval-freq", args.eval_freq),
                         ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq),
                         ("--jobs", args.jobs)):
@@ -272,7 +349,7 @@ def train_from_cli(args) -> int:
     common = dict(algo=args.algo, env_id=args.env, task=args.task, n_timesteps=args.n_timesteps, config=args.config,
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                  command="millvib " + " ".join(sys.argv[1:]), note=args.note)
+                  command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))

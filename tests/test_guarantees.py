@@ -1,0 +1,88 @@
+"""Result folders never lose a user's data: what is refused, what is replaced, what is cleaned up."""
+import json
+import os
+
+import pytest
+
+from millvib_env._paths import RESULT_MARKER, atomic_folder, check_result_folder, clean_debris
+from millvib_env.cli import main as cli_main
+
+QUICK = ["benchmark", "--controllers", "pid-paper", "--reference", "pid-paper", "--episodes", "2", "--quiet",
+         "--no-scenarios"]
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_a_folder_with_a_users_files_is_refused_and_left_as_it_was(tmp_path, capsys):
+    out = tmp_path / "results"
+    (out / "older_run").mkdir(parents=True)
+    (out / "notes.txt").write_text("mine")
+    assert cli_main(QUICK + ["--out", str(out)]) == 2
+    assert "notes.txt" in _one_line_error(capsys)
+    assert (out / "notes.txt").read_text() == "mine" and (out / "older_run").is_dir()
+
+
+def test_a_previous_result_of_the_same_command_is_replaced_but_not_once_a_user_adds_a_file(tmp_path, capsys):
+    out = tmp_path / "results"
+    assert cli_main(QUICK + ["--out", str(out)]) == 0
+    marker = json.loads((out / RESULT_MARKER).read_text())
+    assert marker["command"] == "benchmark" and "benchmark.json" in marker["entries"]
+    assert cli_main(QUICK + ["--out", str(out)]) == 0  # its own previous result
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert cli_main(QUICK + ["--out", str(out)]) == 2
+    assert "notes.txt" in _one_line_error(capsys) and (out / "notes.txt").exists()
+    with pytest.raises(ValueError, match="millvib benchmark"):
+        check_result_folder(out.parent / "results", "--out", "sweep")  # another command's result
+
+
+@pytest.mark.parametrize("json_at", ["inside", "same"])
+def test_another_output_of_the_run_inside_the_result_folder_is_refused(tmp_path, capsys, json_at):
+    out = tmp_path / "D"
+    js = out / "summary.json" if json_at == "inside" else out
+    assert cli_main(QUICK + ["--json", str(js), "--out", str(out)]) == 2
+    assert "--json" in _one_line_error(capsys)
+    assert not out.exists()
+
+
+def test_the_working_directory_is_never_a_result_folder(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.txt").write_text("x")
+    for out in (".", str(tmp_path.parent)):
+        assert cli_main(QUICK + ["--out", out]) == 2
+        assert "working directory" in _one_line_error(capsys)
+    assert (tmp_path / "mine.txt").exists()
+
+
+def test_training_refuses_a_save_dir_that_overlaps_its_log_dir(tmp_path, capsys):
+    out = str(tmp_path / "out")
+    assert cli_main(["train", "--algo", "ppo", "--quiet", "--log-dir", out, "--save-dir", out]) == 2
+    assert "--log-dir" in _one_line_error(capsys)
+
+
+def test_debris_of_a_killed_write_is_removed_and_a_live_writers_is_kept(tmp_path):
+    out = tmp_path / "results"
+    with atomic_folder(out, command="benchmark") as tmp:
+        (tmp / "a.txt").write_text("run 1")
+    dead = tmp_path / ".results.killed.tmp"
+    dead.mkdir()
+    (dead / ".owner").write_text("999999999")  # no such process
+    live = tmp_path / ".results.running.tmp"
+    live.mkdir()
+    (live / ".owner").write_text(str(os.getpid()))
+    clean_debris(out)
+    assert not dead.exists() and live.exists()
+
+
+def test_a_run_killed_between_the_two_renames_gets_its_old_result_back(tmp_path):
+    out = tmp_path / "results"
+    old = tmp_path / ".results.killed.old"
+    (old / "x").mkdir(parents=True)
+    (old / "x" / "a.txt").write_text("run 1")
+    (old / ".owner").write_text("999999999")
+    clean_debris(out)
+    assert (out / "a.txt").read_text() == "run 1" and not old.exists()
