@@ -103,12 +103,12 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
             if isinstance(venv, VecNormalize):
                 sync_envs_normalization(venv, self.eval_env)
             self.eval_env.seed(eval_seed)
-            rewards, _ = evaluate_policy(model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
-                                         deterministic=True)
+            rewards, lengths = evaluate_policy(model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
+                                               deterministic=True, return_episode_rewards=True)
             self.best_mean_reward = float(np.mean(rewards))
             self.evaluations_timesteps.append(0)  # the curve starts at the starting policy
             self.evaluations_results.append([float(r) for r in rewards])
-            self.evaluations_length.append([0] * len(rewards))
+            self.evaluations_length.append([int(n) for n in lengths])
             best_dir.mkdir(parents=True, exist_ok=True)
             model.save(best_dir / "best_model.zip")
             self._keep_best(0)
