@@ -16,7 +16,7 @@ All on the task's tuning seeds (configs/tasks.yaml), disjoint from its validatio
 * ``pid-pf-ff``: pid-pf-robust plus a feedforward of the load cells' force deviation (KFF), all
   five gains refined together from pid-pf-robust with KFF on a grid around KPL / Ap;
 * ``pid-pf-oracle``: a per-plant table of PID + pressure-feedback gains on the pid-oracle grid,
-  each refined from pid-pf-robust over the pid-oracle's 6 disturbance draws.
+  each refined from pid-pf-robust over 32 disturbance draws (tuning seeds +200..231).
 
 The result goes to ``--out FILE`` (the task's shipped control config with the tuned entries replaced,
 so it can be read back), or with ``--write-config`` into configs/control/<task>.yaml. Either way an
@@ -47,7 +47,7 @@ def tuning_seeds(task: Task) -> dict[str, list[int]]:
     """The tuning seeds of each kind of entry (offsets into the task's tuning range)."""
     first = task.seeds["tuning"].start
     return {"nominal": list(range(first, first + 8)), "robust": list(range(first + 100, first + 132)),
-            "oracle": list(range(first + 200, first + 206))}
+            "oracle": list(range(first + 200, first + 206)), "pf-oracle": list(range(first + 200, first + 232))}
 
 
 def _gain_entry(res, seeds: list[int], how: str) -> dict:
@@ -180,12 +180,14 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         c1_grid, ct_grid, cells = _oracle_grid(t, grid)
         log_gains, costs = np.zeros((grid, grid, 4)), np.zeros((grid, grid))
         for i, j in tqdm(cells, desc="tuning pid-pf-oracle grid", unit="plant", disable=not progress):
-            res = tune_from(base[None, :], seeds["oracle"], task=t.name, refine_iters=80,
+            res = tune_from(base[None, :], seeds["pf-oracle"], task=t.name, refine_iters=60, step_decades=0.2,
                             params={"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
             log_gains[i, j], costs[i, j] = res.log10_gains, res.cost
-        out["pid-pf-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["oracle"], (
-            "PID + pressure-feedback gains tuned per grid plant over 6 disturbance draws (Nelder-Mead from "
-            "pid-pf-robust, 80 iterations); log10 gains interpolated bilinearly in (log c1, log Ct)"))
+        out["pid-pf-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["pf-oracle"], (
+            "PID + pressure-feedback gains tuned per grid plant over 32 disturbance draws (Nelder-Mead from "
+            "pid-pf-robust, 60 iterations, never worse than pid-pf-robust on them); log10 gains interpolated "
+            "bilinearly in (log c1, log Ct). With 6 draws per plant (as pid-oracle) the table overfitted: 1.083 "
+            "on the rolling validation plants against 0.993 for pid-pf-robust"))
     return out
 
 
