@@ -1,13 +1,16 @@
-"""Copy each task's result tables from docs/benchmark/<task>/benchmark.md into the README.
+"""Copy each task's results from docs/benchmark/<task>/ into the README (headline table) and into
+docs/benchmark.md (the full tables).
 
     millvib benchmark --task T --all-seeds --out docs/benchmark/T    # for each task, then
     python scripts/readme_results.py [startup rolling change]
 
-Replaces, under the README's `#### <task>:` heading, the block from the main table to the line
-before the paired-difference map with the benchmark's main table, its seed-spread table and its
-note on the normalised score. The verdict paragraphs are prose: reread them against the new tables.
+Fills the blocks between ``<!-- results: TASK -->`` and ``<!-- end results -->`` (README.md: a
+compact table from benchmark.json; docs/benchmark.md: benchmark.md's main table, its seed-spread
+table and its note on the normalised score). The verdicts are prose: reread them against the tables.
 """
 import argparse
+import json
+import re
 from pathlib import Path
 
 from millvib_env._paths import write_text_atomic
@@ -23,15 +26,40 @@ def _table(lines: list[str], start: int) -> list[str]:
     return lines[start:end]
 
 
-def results_block(md: str) -> list[str]:
+def full_block(md: str) -> list[str]:
     lines = md.splitlines()
-    main = _table(lines, next(i for i, x in enumerate(lines) if x.startswith("| controller | seeds |")))
-    block = main + [""]
+    block = [lines[0], ""] + _table(lines, next(i for i, x in enumerate(lines) if x.startswith("| controller | seeds |")))
     spread = [i for i, x in enumerate(lines) if x.startswith("Spread over training seeds")]
     if spread:
-        block += [lines[spread[0]], ""] + _table(lines, spread[0] + 2) + [""]
-    block += [x for x in lines if x.startswith("On this task pid-oracle")][:1]
-    return block + ([""] if block[-1] else [])
+        block += ["", lines[spread[0]], ""] + _table(lines, spread[0] + 2)
+    note = [x for x in lines if x.startswith("On this task pid-oracle")][:1]
+    return block + (["", *note] if note else [])
+
+
+def _pct(d: dict | None, key: str, ci: str) -> str:
+    return f"{100 * d[key]:+.1f} % [{100 * d[ci][0]:+.1f}, {100 * d[ci][1]:+.1f}]" if d else "-"
+
+
+def headline_block(data: dict) -> list[str]:
+    ref = data["reference"]
+    lines = [f"| controller | seeds | cost mean | cost CVaR-20 | vs {ref}: mean | vs {ref}: CVaR-20 | "
+             "vs pid-robust: mean |", "|---|---|---|---|---|---|---|"]
+    for name, s in data["controllers"].items():
+        paired = s.get("paired", {})
+        mean = f"{s['cost_mean']:.3g} [{s['cost_mean_ci'][0]:.3g}, {s['cost_mean_ci'][1]:.3g}]"
+        cvar = f"{s['cost_cvar20']:.3g} [{s['cost_cvar20_ci'][0]:.3g}, {s['cost_cvar20_ci'][1]:.3g}]"
+        shown = f"**{name}**" if name == ref else name
+        lines.append(f"| {shown} | {s['n_seeds']} | {mean} | {cvar} | {_pct(paired.get(ref), 'cost_diff_rel', 'ci')} | "
+                     f"{_pct(paired.get(ref), 'cvar20_diff_rel', 'cvar20_ci')} | "
+                     f"{_pct(paired.get('pid-robust'), 'cost_diff_rel', 'ci')} |")
+    return lines
+
+
+def fill(text: str, task: str, block: list[str], where: str) -> str:
+    pattern = re.compile(rf"(<!-- results: {task} -->\n).*?(<!-- end results -->)", re.S)
+    if not pattern.search(text):
+        raise SystemExit(f"{where} has no block <!-- results: {task} --> ... <!-- end results -->")
+    return pattern.sub(lambda m: m.group(1) + "\n".join(block) + "\n" + m.group(2), text)
 
 
 def main() -> None:
@@ -39,22 +67,22 @@ def main() -> None:
     ap.add_argument("tasks", nargs="*", metavar="TASK",
                     help=f"tasks to copy ({', '.join(list_tasks())}; default all)")
     args = ap.parse_args()
-    readme = ROOT / "README.md"
-    lines = readme.read_text().splitlines()
     for task in args.tasks:
         if task not in list_tasks():
             ap.error(f"task {task!r} is not one of {', '.join(list_tasks())}")
+    readme, docs = ROOT / "README.md", ROOT / "docs" / "benchmark.md"
+    r_text, d_text = readme.read_text(), docs.read_text()
     for task in args.tasks or list_tasks():
-        source = ROOT / "docs" / "benchmark" / task / "benchmark.md"
-        if not source.is_file():
-            ap.error(f"{source} is missing: run `millvib benchmark --task {task} --all-seeds --out {source.parent}` first")
-        md = source.read_text()
-        head = next(i for i, x in enumerate(lines) if x.startswith(f"#### {task}:"))
-        start = next(i for i in range(head, len(lines)) if lines[i].startswith("| controller | seeds |"))
-        stop = next(i for i in range(start, len(lines)) if lines[i].startswith("![paired"))
-        lines[start:stop] = results_block(md)
-        print(f"README: {task} tables from docs/benchmark/{task}/benchmark.md")
-    write_text_atomic(readme, "\n".join(lines) + "\n")
+        folder = ROOT / "docs" / "benchmark" / task
+        if not (folder / "benchmark.json").is_file() or not (folder / "benchmark.md").is_file():
+            ap.error(f"{folder} has no benchmark.json / benchmark.md: run `millvib benchmark --task {task} "
+                     f"--all-seeds --out {folder.relative_to(ROOT)}` first")
+        data = json.loads((folder / "benchmark.json").read_text())
+        r_text = fill(r_text, task, headline_block(data), "README.md")
+        d_text = fill(d_text, task, full_block((folder / "benchmark.md").read_text()), "docs/benchmark.md")
+        print(f"README.md and docs/benchmark.md: {task} from {folder.relative_to(ROOT)}")
+    write_text_atomic(readme, r_text)
+    write_text_atomic(docs, d_text)
 
 
 if __name__ == "__main__":

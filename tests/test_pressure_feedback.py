@@ -45,17 +45,21 @@ def test_the_relative_action_at_zero_runs_the_same_trajectory_as_the_fixed_polic
         assert rec["severity_mm_s"] == info["severity"] and rec["tracking_rms_um"] == info["tracking_rms_um"]
 
 
-def test_a_named_base_is_refused_by_the_env_and_resolved_by_train():
+def test_a_named_base_is_resolved_from_the_tasks_control_config_by_the_env_and_by_train():
     from millvib_env.training.train import resolve_named_gains
 
-    with pytest.raises(ValueError, match="actions.relative.base"):
-        load_env_config("rolling", actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
+    cfg = load_env_config("rolling", actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
+    assert list(GainMap.from_config(cfg).base) == named_gains("rolling", "pid-pf-robust")
+    valve = load_env_config("change", actions={"residual_gains": "pid-pf-ff"})  # as the zoo passes a file's env_kwargs
+    assert valve["actions"]["residual_gains"] == named_gains("change", "pid-pf-ff")
     kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
                                           "residual_gains": "pid-pf-ff"}}, "rolling")
-    assert kw["actions"]["relative"]["base"] == named_gains("rolling", "pid-pf-robust")
+    assert kw["actions"]["relative"]["base"] == named_gains("rolling", "pid-pf-robust")  # the card records numbers
     assert len(kw["actions"]["residual_gains"]) == 5
     with pytest.raises(ValueError, match="gains 'bogus' unknown"):
         resolve_named_gains({"actions": {"residual_gains": "bogus"}}, "rolling")
+    with pytest.raises(ValueError, match="residual_gains"):
+        load_env_config("rolling", actions={"residual_gains": "bogus"})
 
 
 def test_a_base_of_the_wrong_length_is_an_error():

@@ -27,3 +27,26 @@ def test_a_bad_storage_is_refused():
 
     with pytest.raises(ValueError, match="--storage"):
         optuna_storage("somewhere")
+
+
+def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_a_better_entry(tmp_path, capsys):
+    import yaml
+
+    from millvib_env._paths import config_dir
+    from millvib_env.cli import main as cli_main
+
+    shipped = {p.name: p.read_bytes() for p in (config_dir() / "control").glob("*.yaml")}
+    out = tmp_path / "rolling.yaml"
+    rc = cli_main(["tune", "--task", "rolling", "--only", "pid-robust", "--optuna", f"journal:{tmp_path / 'j.log'}",
+                   "--trials", "2", "--out", str(out), "--quiet"])
+    assert rc == 0
+    assert {p.name: p.read_bytes() for p in (config_dir() / "control").glob("*.yaml")} == shipped
+    printed = capsys.readouterr().out
+    tuned = yaml.safe_load(out.read_text())
+    ours = yaml.safe_load(shipped["rolling.yaml"])
+    if "kept the existing entry" in printed:  # a 2-trial study is worse than the shipped tuning
+        assert tuned["pid-robust"] == ours["pid-robust"]
+    else:
+        assert tuned["pid-robust"]["tuning_cost"] <= ours["pid-robust"]["tuning_cost"]
+    assert cli_main(["tune", "--task", "rolling", "--only", "pid-robust"]) == 2  # say where it goes
+    assert "--out FILE" in capsys.readouterr().err

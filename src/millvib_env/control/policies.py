@@ -356,13 +356,10 @@ def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
 
 def named_gains(task: str, name: str) -> list[float]:
     """The gains of a fixed-gain baseline of `task` (pid-robust, pid-pf-robust, pid-pf-ff, ...), as a
-    hyperparameter file may name them for a residual or relative action's base."""
-    if name not in ("pid-paper", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"):
-        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline (pid-paper, pid-nominal, pid-robust, "
-                         "pid-pf-robust, pid-pf-ff)")
-    if name == "pid-paper":
-        return [float(g) for g in PAPER_GAINS.to_array()]
-    return _checked_gains(task, name, _entry(task, name))
+    config may name them for a residual or relative action's base (`envs.config.named_gains`)."""
+    from millvib_env.envs.config import named_gains as _named
+
+    return _named(name, get_task(task).name)
 
 
 #: the folder of training seed s of a multi-seed agent: <agent>/seed-<s>/

@@ -88,15 +88,22 @@ class GainScheduleEnv(MillVibEnv):
     ## Action Space
 
     ``Box(-1, 1, (3,), float32)``: (KP, KI, KD), each mapped on a log scale onto its bounds,
-    ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))`` (`envs.actions.GainMap`). With
-    ``actions={"pressure_feedback": True}`` a 4th entry sets KPL (V/Pa, [1e-9, 1e-4]): the control
-    law gains the pressure feedback ``- KPL (pL - pL_ref)``, the textbook active damping.
+    ``g = 10 ** (log10(lo) + (a + 1) / 2 * (log10(hi) - log10(lo)))`` (`envs.actions.GainMap`, the one
+    mapping). With ``actions={"pressure_feedback": True}`` an entry sets KPL (V/Pa, [1e-9, 1e-4]): the
+    control law gains the pressure feedback ``- KPL (pL - pL_ref)``, the textbook active damping; with
+    ``"force_feedforward": True`` an entry sets KFF (V/N, [1e-6, 1e-1]): ``+ KFF (FL(t) - FL)``, the
+    load cells' force deviation fed forward. ``actions={"scale": "linear"}`` maps the bounds linearly.
+
+    **Relative action** (``actions={"relative": {"base": [KP, KI, KD, KPL], "decades": [1, 1, 0, 1]}}``):
+    each entry is a log offset of +-``decades`` around a base gain set, ``g = base * 10 ** (decades *
+    a)``, so the zero action is exactly the base controller (e.g. ``pid-pf-robust``; `millvib train`
+    resolves a base named in a hyperparameter file) and a gain with ``decades = 0`` stays pinned.
 
     | index | gain | unit | bounds (default config) |
     |---|---|---|---|
     | 0 | KP | V/m | [1e4, 1e7] (the paper's 1e5 and 3.5e6 inside; the stability limit, 5e5-1.4e7, reached) |
     | 1 | KI | V/(m s) | [1e-3, 1e8] |
-    | 2 | KD | V s/m | [1, 300] (1 is negligible: derivative effectively off; 300 keeps 0.5 um of position-sensor noise, differentiated over 1 kHz, near 1 V RMS on the valve) |
+    | 2 | KD | V s/m | [1, 300] (1 is negligible: derivative effectively off; 300 keeps 0.5 um of position-sensor noise, differentiated over 1 kHz, near 1 V RMS on the valve: the PID sees an ideal velocity, and a tuning with KD up to 3e4 found every plant damped by an ideal derivative alone, which no mill loop can do) |
 
     The PID runs continuously inside the simulation (u = KP e + uI - KD v, derivative on the
     measurement). Its state holds the integral *term* uI, so a gain change is bumpless: the
@@ -118,6 +125,7 @@ class GainScheduleEnv(MillVibEnv):
     | 5-7 | current KP, KI, KD (= the last action) | | the action's log mapping |
     | +2 | sin, cos of the pump phase (``observe_phase=True``) | | |
     | +2 | true log c1, log Ct over their ranges (``observe_params=True``, ablations only) | | linear to [-1, 1] |
+    | +1 | load cells' rolling-force deviation FL(t) - FL (``observation={"force": True}``) | N | signed log, q0 = 1e3, q_max = 1e6 |
 
     Values are sampled at the end of each decision period; optional sensor noise and delay act on
     channels 0-2 (and the whole vector for the delay).
@@ -126,8 +134,9 @@ class GainScheduleEnv(MillVibEnv):
 
     Per step, with v_b the band-limited (10-1000 Hz, causal 4th-order Butterworth) velocity and
     e = xd - x sampled at 10 kHz over the period:
-    ``r = -(w_v RMS(v_b) / 4.5 mm/s + w_e RMS(e) / 10 um + w_u mean|a_t - a_(t-1)|) - P [terminated]``
-    with w_v = w_e = 1, w_u = 0.05, P = 100 (all in the config's ``reward`` section). 4.5 mm/s is the
+    ``r = -(w_v RMS(v_b) / 4.5 mm/s + w_e RMS(e) / 10 um + w_u mean|a_t - a_(t-1)| + w_o mean(a_t^2)) - P [terminated]``
+    with w_v = w_e = 1, w_u = 0.05, w_o = 0, P = 100 (all in the config's ``reward`` section; w_o, the
+    offset penalty, is a relative action's distance from its base controller). 4.5 mm/s is the
     ISO 20816-3 B/C boundary. The benchmark's episode cost is
     ``severity / 4.5 + tracking_rms / 10 um``; minus the mean per-step reward is the same sum with
     per-step RMS values, so it equals the cost for a steady response and is at most the cost
@@ -139,7 +148,8 @@ class GainScheduleEnv(MillVibEnv):
     (``initial.x0_m``, optionally jittered), at rest with zero acceleration (which fixes the chamber
     pressure), bristles at the static friction fs, zero integral. Tasks ``rolling`` and ``change``
     (``initial.settled: true``): settled at the set-point, the integral term already holding the
-    load and feeding the leak. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0).
+    load and feeding the leak. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0), or
+    with a relative action's base gains.
 
     ## Episode End
 
@@ -171,12 +181,17 @@ class GainScheduleEnv(MillVibEnv):
     ``rolling``: steady rolling under eccentricity, force steps, gauge corrections and sensor noise;
     ``change``: rolling while damping falls and/or leakage rises mid-episode), or ``paper`` (no
     extra disturbances), ``realistic``; or is a dict. Any top-level key of it can be given as a
-    keyword; every nested key is checked when the config loads.
+    keyword; every nested key is checked when the config loads. Every random draw comes from the
+    env's seeded generator; the plant, the disturbances and the sensor noise each use their own
+    child of the episode's ``SeedSequence``. ``render_mode="rgb_array"`` or ``"human"`` draws the recent
+    displacement, velocity and gains (or valve command) with the severity so far; it works with
+    ``gymnasium.wrappers.RecordVideo``.
 
     ## Version History
 
-    * v0: initial release; tasks, pressure feedback and the plant change added within v0 (the
-      default episode is unchanged, bit for bit).
+    * v0: initial release; tasks, pressure feedback, the plant change, the force feedforward, the
+      relative action, the force observation and the offset penalty added within v0, each off by
+      default (the default episode is unchanged, bit for bit on the machine that saved it).
     """
 
     mode = "gain"
@@ -187,8 +202,9 @@ class ValveEnv(MillVibEnv):
 
     Direct valve control of the rolling mill's hydraulic screw-down cylinder (the plant of
     `GainScheduleEnv`): every control period (1 ms) the agent commands the servo-amplifier input.
-    With ``residual=True`` the command is added to a fixed PID's (the paper's gains by default,
-    ``actions.residual_gains``): the agent learns a correction.
+    With ``residual=True`` the command is added to a fixed controller's (the paper's PID by default;
+    ``actions.residual_gains`` takes [KP, KI, KD], + KPL for pressure feedback, + KFF for the force
+    feedforward): the agent learns a correction.
 
     ## Action Space
 
@@ -202,7 +218,7 @@ class ValveEnv(MillVibEnv):
     ``Box(-1, 1, (6,), float32)`` (7 in residual mode): channels 0-4 as in `GainScheduleEnv`
     (error, velocity, acceleration, pressure, running band-limited vibration), then the last
     action; in residual mode also the PID's own command (V / residual range, clipped). Optional
-    pump phase and true parameters as in `GainScheduleEnv`.
+    pump phase, true parameters and the load cells' force as in `GainScheduleEnv`.
 
     ## Rewards
 

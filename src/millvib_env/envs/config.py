@@ -234,6 +234,8 @@ def _gain_bounds(path: str, value: Any) -> None:
 
 
 def _residual_gains(path: str, value: Any) -> None:
+    if isinstance(value, str):
+        _fail(path, value, f"a named gain set must be one of {list(NAMED_GAINS)}")
     if not isinstance(value, (list, tuple)) or len(value) not in (3, 4, 5):
         _fail(path, value, "must be [KP, KI, KD], [KP, KI, KD, KPL] or [KP, KI, KD, KPL, KFF], each >= 0")
     for k, g in enumerate(value):
@@ -247,9 +249,6 @@ def _relative(path: str, value: Any) -> None:
 
 
 def _base_gains(path: str, value: Any) -> None:
-    if isinstance(value, str):
-        _fail(path, value, "must be a list of gains (a named gain set such as 'pid-pf-robust' is resolved by "
-                           "`millvib train` from configs/control/<task>.yaml, not by the environment)")
     if not isinstance(value, (list, tuple)) or not 3 <= len(value) <= 5:
         _fail(path, value, "must be [KP, KI, KD] plus KPL and KFF where switched on, each > 0")
     for k, g in enumerate(value):
@@ -262,6 +261,70 @@ def _decades(path: str, value: Any) -> None:
             _number(f"{path}[{k}]", d, lo=0.0, hi=6.0)
     else:
         _number(path, value, lo=0.0, hi=6.0)
+
+
+#: the fixed-gain baselines whose gains a config may name (``residual_gains: pid-pf-robust``,
+#: ``relative: {base: pid-pf-ff}``): read from configs/control/<task>.yaml, the task being the one
+#: whose environment config this is (startup for any other config)
+NAMED_GAINS = ("pid-paper", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff")
+
+
+def named_gains(name: str, task: str = "startup") -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task`, from configs/control/<task>.yaml (the
+    paper's PID from MillParams' module), checked: 3-5 finite numbers >= 0."""
+    from millvib_env.params import PAPER_GAINS
+
+    if name not in NAMED_GAINS:
+        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
+    if name == "pid-paper":
+        return [float(g) for g in PAPER_GAINS.to_array()]
+    path = config_dir() / "control" / f"{task}.yaml"
+    where = f"configs/control/{task}.yaml {name}"
+    try:
+        table = load_yaml(path)
+    except Exception as err:
+        raise ValueError(f"{where}: cannot be read ({str(err).splitlines()[0] if str(err) else type(err).__name__})") \
+            from None
+    entry = table.get(name) if isinstance(table, dict) else None
+    if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
+            entry["from_task"] != task:
+        return named_gains(name, entry["from_task"])
+    gains = entry.get("gains") if isinstance(entry, dict) else None
+    if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
+        raise ValueError(f"{where}.gains = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]]) "
+                         f"(run millvib tune --task {task} --only {name} --write-config)")
+    for k, g in enumerate(gains):
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
+            raise ValueError(f"{where}.gains[{k}] = {g!r} is invalid: a finite number >= 0")
+    return [float(g) for g in gains]
+
+
+def _task_of(config: Any) -> str:
+    """The task whose environment config `config` names (startup for any other config)."""
+    if isinstance(config, str):
+        try:
+            from millvib_env.tasks import list_tasks, get_task
+
+            name = CONFIG_ALIASES.get(config, config)
+            for t in list_tasks():
+                if get_task(t).config == name:
+                    return t
+        except ValueError:
+            pass
+    return "startup"
+
+
+def _resolve_names(data: dict, task: str) -> None:
+    acts = data.get("actions")
+    if not isinstance(acts, dict):
+        return
+    if isinstance(acts.get("residual_gains"), str) and acts["residual_gains"] in NAMED_GAINS:
+        acts["residual_gains"] = named_gains(acts["residual_gains"], task)
+    rel = acts.get("relative")
+    if isinstance(rel, dict) and isinstance(rel.get("base"), str):
+        if rel["base"] not in NAMED_GAINS:
+            _fail("actions.relative.base", rel["base"], f"a list of gains or a named gain set {list(NAMED_GAINS)}")
+        acts["relative"] = {**rel, "base": named_gains(rel["base"], task)}
 
 
 _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
@@ -333,6 +396,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
     else:
         raise ValueError(f"config = {config!r} is invalid: a config name {list_env_configs()}, a path or a dict")
     data = _merge(data, overrides)
+    _resolve_names(data, _task_of(config))
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown env config key(s) {sorted(unknown)}; known: {sorted(_TOP_KEYS)}")

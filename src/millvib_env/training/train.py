@@ -57,17 +57,17 @@ def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
     ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task`
     (configs/control/<task>.yaml): a hyperparameter file names the controller it builds on once, and
     the model card records the numbers."""
-    from millvib_env.control.policies import named_gains
+    from millvib_env.envs.config import named_gains
 
     acts = env_kwargs.get("actions")
     if not isinstance(acts, dict):
         return env_kwargs
     acts = dict(acts)
     if isinstance(acts.get("residual_gains"), str):
-        acts["residual_gains"] = named_gains(task, acts["residual_gains"])
+        acts["residual_gains"] = named_gains(acts["residual_gains"], task)
     rel = acts.get("relative")
     if isinstance(rel, dict) and isinstance(rel.get("base"), str):
-        acts["relative"] = {**rel, "base": named_gains(task, rel["base"])}
+        acts["relative"] = {**rel, "base": named_gains(rel["base"], task)}
     return {**env_kwargs, "actions": acts}
 
 
