@@ -116,6 +116,27 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     return FixedPlantsEval(eval_env, **kwargs)
 
 
+def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
+    """True where the zero action is a controller (a relative gain action's base, a residual's PID)."""
+    acts = env_kwargs.get("actions") or {}
+    return bool(env_kwargs.get("residual")) if "Valve" in env_id else bool(acts.get("relative"))
+
+
+def start_at_zero_action(model) -> None:
+    """Make a new policy's deterministic action start at (nearly) zero, so an agent whose zero action
+    is its base controller starts from it. PPO's action layer is already initialised so (orthogonal,
+    gain 0.01); SAC's mean layer is not (a default linear layer: offsets of +-0.5 at the start, 4 %
+    dearer than the base on the rolling validation plants), so it is scaled to PPO's gain."""
+    import torch
+
+    actor = getattr(model, "actor", None)
+    mu = getattr(actor, "mu", None)
+    if isinstance(mu, torch.nn.Linear):
+        with torch.no_grad():
+            torch.nn.init.orthogonal_(mu.weight, gain=0.01)
+            mu.bias.zero_()
+
+
 def _checkpoints(folder: Path) -> list[tuple[Path, Path, int]]:
     """(model, statistics, steps) of every checkpoint in `folder`, newest first."""
     ckpts = sorted(folder.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]), reverse=True)
@@ -222,6 +243,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
         if norm_kwargs is not None:
             venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
         model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
+        if _zero_action_is_a_controller(env_id, env_kwargs):
+            start_at_zero_action(model)
         done_steps = 0
     if norm_kwargs is not None:
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()

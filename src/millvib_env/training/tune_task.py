@@ -257,6 +257,8 @@ def tune_from_cli(args) -> int:
     from millvib_env._yaml import load_yaml
 
     t = get_task(args.task)
+    if args.from_task is not None:
+        get_task(args.from_task)  # an unknown task fails here, in one line
     if bool(args.out) == bool(args.write_config):
         raise ValueError("say where the result goes: --out FILE (a copy of the task's control config with the "
                          "tuned entries) or --write-config (configs/control/<task>.yaml itself), not both")
