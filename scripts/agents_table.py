@@ -1,5 +1,7 @@
 """The shipped agents as a markdown table (from their model cards): task, algorithm, seeds, steps,
-training wall time per seed (trained two at a time on the 2-core machine), and the cards' notes.
+which policy ships (the last, or the best on the fixed evaluation plants: "start" = the starting
+policy, i.e. the base controller), training wall time per seed (trained two at a time on the 2-core
+machine), and the cards' notes.
 
     python scripts/agents_table.py
 """
@@ -10,16 +12,19 @@ from millvib_env.control.policies import agent_seed_folders, list_agents
 
 
 def main() -> None:
-    print("| agent | task | algorithm | env | seeds | steps per seed | wall time per seed (min) | note |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| agent | task | algorithm | env | seeds | steps per seed | shipped policy (per seed) | "
+          "wall time per seed (min) | note |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in list_agents():
         cards = [json.loads((f / "card.json").read_text()) for f in agent_seed_folders(agents_dir() / name).values()]
         walls = [c["wall_time_s"] / 60 for c in cards]
         steps = sorted({round(c["n_timesteps"] / 1e6, 2) for c in cards})
         notes = sorted({c["note"] for c in cards if c.get("note")})
+        shipped = ", ".join("start" if x["selected"]["timesteps"] == 0 else f"{x['selected']['timesteps'] / 1e6:g} M"
+                            for x in cards if x.get("selected")) or "last"
         c = cards[0]
         print(f"| {name} | {c.get('task', 'startup')} | {c['algo']} | {c['env_id'].replace('MillVib-', '')} | "
-              f"{', '.join(str(x['seed']) for x in cards)} | {', '.join(f'{s:g} M' for s in steps)} | "
+              f"{', '.join(str(x['seed']) for x in cards)} | {', '.join(f'{s:g} M' for s in steps)} | {shipped} | "
               f"{min(walls):.1f}-{max(walls):.1f} | {' '.join(notes)} |")
 
 

@@ -86,3 +86,63 @@ def test_a_run_killed_between_the_two_renames_gets_its_old_result_back(tmp_path)
     (old / ".owner").write_text("999999999")
     clean_debris(out)
     assert (out / "a.txt").read_text() == "run 1" and not old.exists()
+
+
+def test_a_shipped_name_loads_the_shipped_agent_whatever_lies_in_the_working_directory(tmp_path, monkeypatch):
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.policies import load_controller
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", tmp_path / "ppo-gain")  # e.g. train --save-dir ppo-gain
+    (tmp_path / "ppo-gain" / "card.json").write_text('{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "seed": 7}')
+    agent = load_controller("ppo-gain")
+    assert agent.shipped and agent.seed == 0
+    assert not load_controller("./ppo-gain").shipped  # a path is a path
+
+
+def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants(tmp_path):
+    import json
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.policies import load_controller
+
+    with pytest.raises(ValueError, match="trained on task 'startup', not 'rolling'"):
+        load_controller("ppo-gain", task="rolling")
+    folder = tmp_path / "agent"
+    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", folder)
+    card = json.loads((folder / "card.json").read_text())
+    card["env_kwargs"] = {"randomize": {}}
+    (folder / "card.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match="randomize"):
+        load_controller(str(folder))
+    card["env_kwargs"], card["normalize"] = {}, "false"
+    (folder / "card.json").write_text(json.dumps(card))
+    with pytest.raises(ValueError, match="normalize"):
+        load_controller(str(folder))
+
+
+def test_a_seed_folder_that_lost_its_card_is_an_error_not_a_silent_fallback(tmp_path, monkeypatch):
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.policies import load_controller
+
+    root = tmp_path / "agents"
+    shutil.copytree(agents_dir(), root)
+    monkeypatch.setenv("MILLVIB_AGENTS", str(root))
+    (root / "ppo-gain" / "seed-0" / "card.json").unlink()
+    with pytest.raises(ValueError, match="card.json"):
+        load_controller("ppo-gain")
+
+
+@pytest.mark.parametrize("t_start", [-0.5, 2.0, float("nan")])
+def test_a_severity_window_outside_the_run_is_refused(t_start):
+    from millvib_env import MillParams, PIDGains
+    from millvib_env.plant.integrate import simulate
+
+    run = simulate(MillParams(), PIDGains(1e5, 1e-3), 0.5)
+    with pytest.raises(ValueError, match="t_start"):
+        run.severity(t_start=t_start)

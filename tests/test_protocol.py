@@ -146,3 +146,16 @@ def test_all_seeds_pools_every_training_seed_of_an_agent(tmp_path):
     first = [r["cost"] for r in full["records"][str(agent)] if r["agent_seed"] == s["per_seed"][0]["seed"]]
     assert first == [r["cost"] for r in quick["records"][str(agent)]]
     assert public_json(full)["all_seeds"] is True
+
+
+def test_a_benchmark_of_baselines_never_imports_torch(tmp_path):
+    import subprocess
+    import sys
+
+    code = ("import sys; from millvib_env.cli import main; "
+            "rc = main(['benchmark', '--task', 'rolling', '--controllers', 'pid-robust', 'pid-adaptive', '--episodes', "
+            "'2', '--quiet', '--json', sys.argv[1]]); "
+            "print(rc, 'torch' in sys.modules, 'stable_baselines3' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "b.json")], capture_output=True, text=True,
+                         timeout=300)
+    assert run.stdout.strip().splitlines()[-1] == "0 False False", run.stdout + run.stderr

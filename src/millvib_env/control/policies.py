@@ -231,6 +231,12 @@ class LQRPolicy(PerEnvGains):
         return g
 
 
+#: what an agent's card may set in its environment: its action, observation and reward, never the
+#: episode (plants, disturbances, start, length) that every controller of the task must share
+AGENT_ENV_KEYS = frozenset({"config", "residual", "observe_params", "observe_phase", "actions", "observation",
+                            "reward"})
+
+
 class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
@@ -253,6 +259,13 @@ class AgentPolicy(Controller):
         self.env_id = self.card["env_id"]
         self.task = self.card.get("task", "startup")
         self.env_kwargs = dict(self.card.get("env_kwargs", {}))
+        episode_keys = sorted(set(self.env_kwargs) - AGENT_ENV_KEYS)
+        if episode_keys:
+            raise ValueError(f"{card_path}: env_kwargs {episode_keys} would change the episode the agent meets (its "
+                             f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
+                             "every controller of a task meets the same plants")
+        if "config" in self.env_kwargs and self.env_kwargs["config"] != get_task(self.card.get("task", "startup")).config:
+            raise ValueError(f"{card_path}: env_kwargs config {self.env_kwargs['config']!r} is not its task's")
         algo = self.card["algo"].lower()
         if algo == "ppo":
             from stable_baselines3 import PPO as cls
@@ -271,7 +284,12 @@ class AgentPolicy(Controller):
         except Exception as err:
             raise ValueError(f"{model_path} cannot be loaded: {type(err).__name__}: {str(err)[:200]}") from None
         self.obs_stats = None
-        if str(self.card.get("normalize", "None")) not in ("None", "False", "", "{}"):
+        normalize = self.card.get("normalize", "None")
+        if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \
+                not normalize.strip().startswith(("{", "dict(")):
+            raise ValueError(f"{card_path}: normalize = {normalize!r} is invalid: 'None' or the VecNormalize "
+                             "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
+        if normalize.strip() not in ("None", "False", "", "{}"):
             from millvib_env.training.normalization import STATS_FILE, load_obs_stats
 
             self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
@@ -379,8 +397,10 @@ def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
     found = {}
     for p in folder.glob("seed-*"):
         m = SEED_FOLDER.fullmatch(p.name)
-        if m and p.is_dir() and (p / "card.json").exists():
+        if m and p.is_dir():  # a seed folder that lost its card is listed, and fails to load in one line
             found[int(m.group(1))] = p
+    if found and not any((p / "card.json").exists() for p in found.values()):
+        return {}
     return dict(sorted(found.items()))
 
 
@@ -408,10 +428,17 @@ def list_agents(task: str | None = None) -> list[str]:
 
 
 def agent_folder(name: str) -> Path:
-    """The folder of an agent given by name (under agents/) or by path; ValueError if there is none."""
-    path = Path(name)
-    if not path.exists():
-        path = agents_dir() / name
+    """The folder of an agent given by name (a shipped agent under agents/: always that one, even where
+    a folder of the same name lies in the working directory) or by path; ValueError if there is none.
+    A shipped agent that is a symbolic link is refused: the manifest covers real folders only."""
+    shipped = agents_dir() / name
+    if "/" not in name and "\\" not in name and name not in (".", "..") and shipped.is_dir():
+        if shipped.is_symlink() or any(p.is_symlink() for p in shipped.iterdir()):
+            raise ValueError(f"agents/{name} is (or holds) a symbolic link: shipped agents are real folders covered "
+                             "by agents/MANIFEST.sha256")
+        path = shipped
+    else:
+        path = Path(name)
     if not path.is_dir() or not agent_seed_folders(path):
         raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
                          f"{list_agents()} or an agent folder path (a folder with card.json, or seed-<s>/ "
@@ -429,11 +456,26 @@ def oracle_table(task: str, name: str = "pid-oracle") -> GainTable:
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
-def load_controller(name: str, task: str = "startup", config: EnvConfig | None = None,
+def load_controller(name: str, task: str | None = None, config: EnvConfig | None = None,
                     seed: int | None = None) -> Controller:
     """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
-    an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest)."""
-    task = get_task(task).name
+    an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest).
+    `task` defaults to the agent's own (startup for a baseline); an agent trained on another task
+    than the one asked for is refused."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
+    if name not in BASELINES:
+        seeds = agent_seed_folders(agent_folder(name))
+        if seed is None:
+            seed = next(iter(seeds))
+        if seed not in seeds:
+            raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
+        agent = AgentPolicy(seeds[seed])
+        if task is not None and get_task(task).name != agent.task:
+            raise ValueError(f"agent {name!r} was trained on task {agent.task!r}, not {get_task(task).name!r}: "
+                             f"run it with task {agent.task!r}")
+        return agent
+    task = get_task(task if task is not None else "startup").name
     gain_map = GainMap.from_config(config or load_env_config(get_task(task).config))
     ctrl: Controller
     if name == "pid-paper":
@@ -454,12 +496,5 @@ def load_controller(name: str, task: str = "startup", config: EnvConfig | None =
         entry = _entry(task, name)
         ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]),
                               load_env_config(get_task(task).config).base_params)
-    else:
-        seeds = agent_seed_folders(agent_folder(name))
-        if seed is None:
-            seed = next(iter(seeds))
-        if seed not in seeds:
-            raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
-        return AgentPolicy(seeds[seed])
     ctrl.task = task
     return ctrl

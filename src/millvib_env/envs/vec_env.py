@@ -14,8 +14,7 @@ from millvib_env.envs.core import MillVibCore
 
 __all__ = ["MillVibVecEnv", "make_vec_env", "ENV_IDS"]
 
-#: registered id -> (mode, default keyword arguments)
-ENV_IDS = {"MillVib-GainSchedule-v0": ("gain", {}), "MillVib-Valve-v0": ("valve", {})}
+from millvib_env.envs.batch import ENV_IDS, env_mode  # noqa: E402 (one table of ids)
 
 
 class MillVibVecEnv(VecEnv):
@@ -30,11 +29,9 @@ class MillVibVecEnv(VecEnv):
     def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
                  config: str | dict | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
-        if env_id not in ENV_IDS:
-            raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
+        mode = env_mode(env_id)
         if render_mode not in (None, "rgb_array", "human"):
             raise ValueError(f"render_mode = {render_mode!r} is invalid")
-        mode, _ = ENV_IDS[env_id]
         self.env_id = env_id
         self.render_mode = render_mode
         self.config = load_env_config(config, **overrides)

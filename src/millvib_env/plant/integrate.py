@@ -81,6 +81,11 @@ class SimResult:
         return float(self.t[1] - self.t[0])
 
     def window(self, t_start: float = 0.0) -> slice:
+        """The samples from `t_start` (s, in [0, the run's end)) on; ValueError outside."""
+        t_end = (len(self.t) - 1) * self.dt
+        if isinstance(t_start, bool) or not isinstance(t_start, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(t_start) or not 0.0 <= t_start < t_end:
+            raise ValueError(f"t_start = {t_start!r} s is invalid: a time in [0, {t_end:g}) s, the run's record")
         k0 = int(math.ceil(t_start / self.dt - 1e-9))
         return slice(k0, None)
 
@@ -93,7 +98,10 @@ class SimResult:
         if self.diverged:
             raise ValueError(f"run diverged at t = {self.t_diverged:.6g} s ({self.status}); "
                              "a diverged run has no severity")
-        sig = {"acceleration": self.a, "velocity": self.v, "displacement": self.x}[quantity]
+        signals = {"acceleration": self.a, "velocity": self.v, "displacement": self.x}
+        if quantity not in signals:
+            raise ValueError(f"quantity = {quantity!r} is invalid: one of {list(signals)}")
+        sig = signals[quantity]
         return vibration_severity(sig[self.window(t_start)], 1.0 / self.dt, quantity=quantity, band=band)
 
     def iso_zone(self, **kw) -> str:

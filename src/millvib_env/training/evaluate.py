@@ -14,7 +14,7 @@ from typing import Sequence
 import numpy as np
 
 from millvib_env.control.policies import Controller
-from millvib_env.envs.vec_env import MillVibVecEnv
+from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.tasks import get_task
 
 __all__ = ["run_episodes", "episode_cost", "COST_SCALES"]
@@ -44,12 +44,9 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     env_id = env_id or controller.env_id
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     n = len(seeds)
-    venv = MillVibVecEnv(env_id, n, **kwargs)
+    venv = EpisodeBatch(env_id, n, **kwargs)
     venv.core.record_signals = controller.needs_signals
-    venv._seeds = [int(s) for s in seeds]
-    if scenario is not None:
-        venv.set_options({"scenario": scenario})
-    obs = venv.reset()
+    obs = venv.reset(seeds, {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, range(n))
     records: list[dict | None] = [None] * n
     first_params = [dict(info["params"]) for info in venv.reset_infos]
@@ -61,7 +58,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
         bar = tqdm(total=n, desc=desc or controller.name, unit="ep", leave=False)
     while any(r is None for r in records):
         action, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        obs, _, dones, infos = venv.step(action)
+        obs, dones, infos = venv.step(action)
         episode_start = dones
         controller.on_step(infos)
         finished = np.flatnonzero(dones)
@@ -96,12 +93,9 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     from millvib_env.plant.model import A_ACC, A_U, IV, IX
 
     kwargs = env_kwargs_for(controller, task, env_kwargs)
-    venv = MillVibVecEnv(controller.env_id, 1, **kwargs)
+    venv = EpisodeBatch(controller.env_id, 1, **kwargs)
     venv.core.record_signals = controller.needs_signals
-    venv._seeds = [seed]
-    if scenario is not None:
-        venv.set_options({"scenario": scenario})
-    obs = venv.reset()
+    obs = venv.reset([seed], {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, [0])
     core = venv.core
     parts: dict[str, list] = {"x": [core.Y[:1, IX].copy()], "v": [core.Y[:1, IV].copy()], "a": [np.zeros(1)],
@@ -111,7 +105,7 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
         action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
         if core.mode == "gain":
             gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0][:3])
-        obs, _, done, infos = venv.step(action)
+        obs, done, infos = venv.step(action)
         start = done
         controller.on_step(infos)
         n = core.n_samp

@@ -152,12 +152,11 @@ def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = N
 
 def plants_of(seeds: Sequence[int], task: str) -> list:
     """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
-    from millvib_env.envs.vec_env import MillVibVecEnv
+    from millvib_env.envs.batch import EpisodeBatch
 
-    venv = MillVibVecEnv("MillVib-GainSchedule-v0", len(seeds), config=get_task(task).config)
-    venv._seeds = [int(s) for s in seeds]
-    venv.reset()
-    return list(venv.core.params)
+    batch = EpisodeBatch("MillVib-GainSchedule-v0", len(seeds), config=get_task(task).config)
+    batch.reset(seeds)
+    return list(batch.core.params)
 
 
 def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: int = 4096) -> np.ndarray:

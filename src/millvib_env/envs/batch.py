@@ -1,0 +1,53 @@
+"""A batch of episodes on given seeds, stepped together with auto-reset, without Stable-Baselines3.
+
+What the evaluation loop, the tuning and the benchmark need from a vector env, on the same engine
+(`MillVibCore`) and with the same semantics as the SB3 `MillVibVecEnv` (an auto-reset continues each
+environment's own generator), so a run of baselines never imports torch.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import MillVibCore
+
+__all__ = ["EpisodeBatch", "ENV_IDS", "env_mode"]
+
+#: registered id -> the engine's mode
+ENV_IDS = {"MillVib-GainSchedule-v0": "gain", "MillVib-Valve-v0": "valve"}
+
+
+def env_mode(env_id: str) -> str:
+    if env_id not in ENV_IDS:
+        raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
+    return ENV_IDS[env_id]
+
+
+class EpisodeBatch:
+    """N environments of `env_id`; `reset(seeds)` starts environment i on seeds[i], `step` advances
+    them all and restarts the finished ones (their next episode's first observation is returned)."""
+
+    def __init__(self, env_id: str, n: int, *, config: str | dict | None = "startup", residual: bool = False,
+                 observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
+        self.config = load_env_config(config, **overrides)
+        self.core = MillVibCore(n, env_mode(env_id), self.config, residual=residual, observe_params=observe_params,
+                                observe_phase=observe_phase)
+        self.n = n
+        self.reset_infos: list[dict] = [{} for _ in range(n)]
+
+    def reset(self, seeds: Sequence[int], options: dict | None = None) -> np.ndarray:
+        obs = np.zeros((self.n, *self.core.observation_space.shape), dtype=np.float32)
+        for i in range(self.n):
+            obs[i], self.reset_infos[i] = self.core.reset_env(i, int(seeds[i]), options)
+        return obs
+
+    def step(self, actions) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+        """(observations, done flags, infos); a done environment's info is its episode's last."""
+        obs, _, terminated, truncated, infos = self.core.step(actions)
+        dones = terminated | truncated
+        for i in np.flatnonzero(dones):
+            obs[i], self.reset_infos[i] = self.core.reset_env(i)
+        return obs, dones, infos
