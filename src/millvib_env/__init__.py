@@ -1,7 +1,8 @@
 """millvib-env: hydraulic screw-down vibration of a rolling mill, as a simulator and RL environments."""
-from millvib_env import _numba_cache
+from millvib_env import _numba_cache, threads
 
 _numba_cache.configure()  # before any numba import: cache keyed by this package's source
+threads.passive_waiting()  # before numba's OpenMP pool starts: idle threads sleep, not spin
 
 # isort: split
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, load_preset

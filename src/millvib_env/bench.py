@@ -14,6 +14,8 @@ computed afterwards from the states, the same way for both methods):
 from __future__ import annotations
 
 import json
+import math
+import os
 import platform
 import statistics
 import time
@@ -144,22 +146,44 @@ def bench_envs(*, n_envs: int = 64, native_steps: int = 1000, dummy_steps: int =
         rng = np.random.default_rng(seed)
         acts = rng.uniform(-1, 1, (native_steps + 5, n_envs, *native.action_space.shape)).astype(np.float32)
         native_rate = _time_vec(native, acts)
+        from millvib_env.threads import set_num_threads
+
+        set_num_threads(1)  # the same batch on one thread: what threads give on this machine now
+        try:
+            serial_native = MillVibVecEnv(env_id, n_envs, seed=seed, **kwargs)
+            serial_rate = _time_vec(serial_native, acts)
+        finally:
+            set_num_threads(None)
         dummy = DummyVecEnv([lambda: gym.make(env_id, **kwargs) for _ in range(n_envs)])
         dummy.seed(seed)
         dummy_rate = _time_vec(dummy, acts[:dummy_steps + 5])
         period = native.core.period_s
         rows.append({"env_id": env_id + (" (residual)" if kwargs.get("residual") else ""), "n_envs": n_envs,
-                     "native_steps_per_s": native_rate, "dummy_steps_per_s": dummy_rate,
+                     "native_steps_per_s": native_rate, "serial_steps_per_s": serial_rate,
+                     "dummy_steps_per_s": dummy_rate,
                      "speedup": native_rate / dummy_rate, "simulated_s_per_wall_s": native_rate * period})
-    return {"n_envs": n_envs, "rows": rows}
+    return {"n_envs": n_envs, "rows": rows, **machine_state()}
+
+
+def machine_state() -> dict:
+    """What the figures were measured under: the load average, the cores, the threads' wait policy."""
+    import numba
+
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
+    return {"load_1min": round(load[0], 2), "cpus": os.cpu_count(), "plant_threads": numba.config.NUMBA_NUM_THREADS,
+            "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "")}
 
 
 def format_env_bench(res: dict) -> str:
-    lines = [f"Environment stepping, {res['n_envs']} envs, uniform random actions, auto-resets included:",
-             "| environment | native VecEnv (steps/s) | SB3 DummyVecEnv (steps/s) | speed-up | simulated s per wall s |",
-             "|---|---|---|---|---|"]
+    lines = [f"Environment stepping, {res['n_envs']} envs, uniform random actions, auto-resets included "
+             f"(load {res.get('load_1min', math.nan):g} on {res.get('cpus')} CPUs, {res.get('plant_threads')} plant "
+             f"threads, OMP_WAIT_POLICY={res.get('omp_wait_policy') or 'unset'}):",
+             "| environment | native VecEnv (steps/s) | the same, one thread | SB3 DummyVecEnv (steps/s) | speed-up | "
+             "simulated s per wall s |",
+             "|---|---|---|---|---|---|"]
     for r in res["rows"]:
-        lines.append(f"| {r['env_id']} | {r['native_steps_per_s']:,.0f} | {r['dummy_steps_per_s']:,.0f} | "
+        serial = f"{r['serial_steps_per_s']:,.0f}" if "serial_steps_per_s" in r else "-"
+        lines.append(f"| {r['env_id']} | {r['native_steps_per_s']:,.0f} | {serial} | {r['dummy_steps_per_s']:,.0f} | "
                      f"{r['speedup']:.1f}x | {r['simulated_s_per_wall_s']:.0f} |")
     return "\n".join(lines)
 

@@ -12,6 +12,8 @@
   envs it stepped 75k env steps/s against 45k for the fork-safe ``workqueue`` layer.
   ``NUMBA_THREADING_LAYER=workqueue`` chooses the latter where a forked child must run large
   batches itself.
+* Idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE``, set when the package is imported unless
+  the user set a policy): spinning threads made a loaded machine step 3x slower than serial.
 * `millvib train` runs the plant serially (MILLVIB_NUM_THREADS unset means 1 there): the learner
   takes most of the wall time and idle numba threads slow torch.
 """
@@ -21,13 +23,39 @@ from __future__ import annotations
 import os
 
 __all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "serial_unless_set",
-           "THREADS_ENV"]
+           "THREADS_ENV", "passive_waiting", "one_blas_thread"]
 
 THREADS_ENV = "MILLVIB_NUM_THREADS"
 #: batches smaller than this run serially
 MIN_PARALLEL = 8
 
 _override: int | None = None
+
+
+def passive_waiting() -> None:
+    """Make idle OpenMP threads sleep instead of spin (OMP_WAIT_POLICY=PASSIVE), unless the user set a
+    policy: called when the package is imported, before numba's thread pool (GNU OpenMP here) starts.
+    Measured by `python scripts/thread_bench.py` (docs/performance.md)."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+class one_blas_thread:
+    """Context: BLAS on one thread (threadpoolctl) around small dense solves (the LQR's 4 x 4 Riccati
+    equation: 24 ms with OpenBLAS's threads on a loaded 2-core machine, 0.5-1.2 ms on one). The
+    libraries are inspected once per process, not per solve."""
+
+    _controller = None
+
+    def __enter__(self):
+        from threadpoolctl import ThreadpoolController
+
+        if one_blas_thread._controller is None:
+            one_blas_thread._controller = ThreadpoolController()
+        self._ctx = one_blas_thread._controller.limit(limits=1, user_api="blas")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._ctx.restore_original_limits()
 
 
 def configured_threads() -> int | None:

@@ -22,6 +22,7 @@ import numpy as np
 from scipy import linalg
 
 from millvib_env.analysis.linear import linearize
+from millvib_env.threads import one_blas_thread
 from millvib_env.params import MillParams
 
 __all__ = ["LQRWeights", "lqr_design", "lqr_gains", "STATE_SCALES", "U_SCALE_V"]
@@ -67,8 +68,9 @@ def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0):
     B_s = B * U_SCALE_V / T[:, None]
     Q = np.diag([weights.q_x, weights.q_v, weights.q_p, weights.q_i])
     R = np.array([[weights.r]])
-    P = linalg.solve_continuous_are(A_s, B_s, Q, R)
-    K_s = np.linalg.solve(R, B_s.T @ P)
+    with one_blas_thread():  # a 4 x 4 Riccati solve: BLAS threads cost 20x more than they give under load
+        P = linalg.solve_continuous_are(A_s, B_s, Q, R)
+        K_s = np.linalg.solve(R, B_s.T @ P)
     K = (U_SCALE_V * K_s / T[None, :])[0]
     return K, A - B @ K[None, :], A, B
 
