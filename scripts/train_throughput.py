@@ -16,7 +16,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 SETTINGS = {"before": {"MILLVIB_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "omp"},
             "now": {}}

@@ -215,6 +215,7 @@ def test_config_errors_name_the_key():
         gym.make("MillVib-GainSchedule-v0", randomize={"damping": {"low": 1, "high": 2}})
 
 
+@pytest.mark.slow
 def test_ppo_trains_on_the_native_vec_env():
     from stable_baselines3 import PPO
 

@@ -95,11 +95,11 @@ def test_a_shipped_name_loads_the_shipped_agent_whatever_lies_in_the_working_dir
     from millvib_env.control.policies import load_controller
 
     monkeypatch.chdir(tmp_path)
-    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", tmp_path / "ppo-gain")  # e.g. train --save-dir ppo-gain
-    (tmp_path / "ppo-gain" / "card.json").write_text('{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "seed": 7}')
-    agent = load_controller("ppo-gain")
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", tmp_path / "ppo-gain-pf")  # e.g. train --save-dir ppo-gain-pf
+    (tmp_path / "ppo-gain-pf" / "card.json").write_text('{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "seed": 7}')
+    agent = load_controller("ppo-gain-pf")
     assert agent.shipped and agent.seed == 0
-    assert not load_controller("./ppo-gain").shipped  # a path is a path
+    assert not load_controller("./ppo-gain-pf").shipped  # a path is a path
 
 
 def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants(tmp_path):
@@ -110,9 +110,9 @@ def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants
     from millvib_env.control.policies import load_controller
 
     with pytest.raises(ValueError, match="trained on task 'startup', not 'rolling'"):
-        load_controller("ppo-gain", task="rolling")
+        load_controller("ppo-gain-pf", task="rolling")
     folder = tmp_path / "agent"
-    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", folder)
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
     card = json.loads((folder / "card.json").read_text())
     card["env_kwargs"] = {"randomize": {}}
     (folder / "card.json").write_text(json.dumps(card))
@@ -133,9 +133,9 @@ def test_a_seed_folder_that_lost_its_card_is_an_error_not_a_silent_fallback(tmp_
     root = tmp_path / "agents"
     shutil.copytree(agents_dir(), root)
     monkeypatch.setenv("MILLVIB_AGENTS", str(root))
-    (root / "ppo-gain" / "seed-0" / "card.json").unlink()
+    (root / "ppo-gain-pf" / "seed-0" / "card.json").unlink()
     with pytest.raises(ValueError, match="card.json"):
-        load_controller("ppo-gain")
+        load_controller("ppo-gain-pf")
 
 
 @pytest.mark.parametrize("t_start", [-0.5, 2.0, float("nan")])

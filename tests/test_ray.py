@@ -1,6 +1,7 @@
 """Scale-out: seeds, benchmark chunks and sweeps as Ray tasks on a local 2-CPU cluster equal the local run."""
 import pytest
 
+pytestmark = pytest.mark.slow
 ray = pytest.importorskip("ray")
 
 from millvib_env.training.benchmark import public_json, run_benchmark  # noqa: E402

@@ -106,7 +106,7 @@ def _exit_status(argv) -> int:
 
 #: flag values a user may mistype: numbers out of range, not numbers, empty, paths that cannot be written
 BAD_OR_ODD = ["0", "-1", "2", "1e9", "3.5", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "rolling",
-              "change", "pid-paper", "ppo-gain", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1"]
+              "change", "pid-paper", "ppo-gain-pf", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1"]
 FUZZ_FLAGS = {
     # benchmark: a valid draw runs pid-paper on 2 plants; train: --n-timesteps is always invalid, so no run trains
     "benchmark": (["--controllers", "pid-paper", "--no-scenarios", "--episodes", "2", "--quiet"],
@@ -164,7 +164,7 @@ def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
     from millvib_env.control.policies import load_controller
 
     folder = tmp_path / "agent"
-    shutil.copytree(agents_dir() / "ppo-gain" / "seed-0", folder)
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
     (folder / "vecnormalize.npz").unlink()
     with pytest.raises(ValueError, match="vecnormalize.npz is missing"):
         load_controller(str(folder))
@@ -185,14 +185,14 @@ def test_a_changed_shipped_agent_fails_its_checksum(tmp_path, monkeypatch):
     root = tmp_path / "agents"
     shutil.copytree(agents_dir(), root)
     monkeypatch.setenv("MILLVIB_AGENTS", str(root))
-    card = root / "ppo-gain" / "seed-0" / "card.json"
+    card = root / "ppo-gain-pf" / "seed-0" / "card.json"
     card.write_text(card.read_text().replace('"seed": 0', '"seed": 1'))
     with pytest.raises(ValueError, match="does not match its checksum"):
-        load_controller("ppo-gain")
-    (root / "ppo-gain" / "seed-0" / "card.json").unlink()
-    shutil.copytree(root / "ppo-gain" / "seed-1", root / "ppo-gain" / "seed-9")
+        load_controller("ppo-gain-pf")
+    (root / "ppo-gain-pf" / "seed-0" / "card.json").unlink()
+    shutil.copytree(root / "ppo-gain-pf" / "seed-1", root / "ppo-gain-pf" / "seed-9")
     with pytest.raises(ValueError, match="seed-9 is not in"):
-        load_controller("ppo-gain", seed=9)  # an unlisted seed folder is not loaded silently
+        load_controller("ppo-gain-pf", seed=9)  # an unlisted seed folder is not loaded silently
 
 
 def test_import_and_help_work_whatever_the_config_files(tmp_path):
@@ -238,6 +238,7 @@ def test_the_same_benchmark_gives_the_same_json_bytes(tmp_path):
     assert paths[0].read_bytes() == paths[1].read_bytes()
 
 
+@pytest.mark.slow
 def test_resume_falls_back_to_the_last_intact_checkpoint_and_keeps_the_evaluations(tmp_path, capsys):
     from millvib_env.training.train import train
     from tests.test_training import EXTRA, TINY

@@ -53,6 +53,7 @@ def test_oracle_needs_and_uses_the_true_parameters():
     assert all(np.isfinite(r["cost"]) for r in recs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["ppo", "sac", "recurrentppo"])
 def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo):
     policy = "MlpLstmPolicy" if algo == "recurrentppo" else "MlpPolicy"
@@ -104,6 +105,7 @@ def test_default_benchmark_covers_the_shipped_agents():
     assert len(agents) >= 2, "the PPO and SAC gain schedulers are shipped under agents/"
 
 
+@pytest.mark.slow
 def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
     cfg = tmp_path / "ppo.yml"
     cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
@@ -118,6 +120,7 @@ def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
     assert all(p in get_task("rolling").seeds["heldout"] for p in result["plants"])
 
 
+@pytest.mark.slow
 def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
     from millvib_env.training.train import train_seeds
 

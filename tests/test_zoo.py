@@ -4,6 +4,7 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.slow
 pytest.importorskip("rl_zoo3")
 
 from millvib_env._paths import config_dir  # noqa: E402

@@ -31,7 +31,7 @@ from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND, state_scale
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_ACC, A_U, C_DFL, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_UEXT,
+from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_UEXT,
                                      IPL, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, drive_vector, pack,
                                      settled_state)
 from millvib_env.severity import band_levels, iso_zone, vibration_severity

@@ -15,7 +15,6 @@ import numpy as np
 
 from millvib_env.control.policies import Controller
 from millvib_env.envs.batch import EpisodeBatch
-from millvib_env.tasks import get_task
 
 __all__ = ["run_episodes", "episode_cost", "COST_SCALES"]
 
