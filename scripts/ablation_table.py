@@ -31,7 +31,7 @@ def main() -> None:
                 design = "residual on pid-robust" if "residual" in name else "absolute (log ranges 3-11 decades wide)"
                 print(_row(task, name, s, design))
         for name, s in new["controllers"].items():
-            if "-pf" in name or "-ff" in name:
+            if not name.startswith("pid-") and not name.startswith("lqr-"):
                 design = "residual on pid-pf-ff" if "residual" in name else "relative to pid-pf-robust"
                 print(_row(task, name, s, design))
 
