@@ -25,54 +25,12 @@ import numpy as np
 
 from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
+from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant.integrate import SimResult, simulate_batch
 from millvib_env.severity import iso_zone
 
 __all__ = ["PaperCase", "PaperStudy", "PAPER_STUDIES", "CaseResult", "run_studies", "reproduce"]
-
-
-@dataclass(frozen=True)
-class PaperCase:
-    label: str
-    value: float
-    params: MillParams
-    gains: PIDGains
-
-
-@dataclass(frozen=True)
-class PaperStudy:
-    key: str
-    symbol: str
-    unit: str
-    figures: str
-    claim_direction: str
-    claim_kind: str
-    cases: tuple[PaperCase, ...]
-
-
-def _study(key: str, symbol: str, unit: str, values, figures: str, direction: str, kind: str) -> PaperStudy:
-    cases = []
-    for v in values:
-        if key == "KP":
-            params, gains = MillParams(), PIDGains(v, PAPER_GAINS.ki, PAPER_GAINS.kd)
-        else:
-            params, gains = MillParams().replace(**{key: v}), PAPER_GAINS
-        cases.append(PaperCase(f"{symbol} = {v:.3g}", v, params, gains))
-    return PaperStudy(key, symbol, unit, figures, direction, kind, tuple(cases))
-
-
-PAPER_STUDIES: tuple[PaperStudy, ...] = (
-    _study("c1", "c1", "N s/m", (2.25e6, 2.25e5, 1.25e5), "Figs. 4-5",
-           "severity rises as the damping c1 falls",
-           "stable -> periodic vibration as c1 falls"),
-    _study("Ct", "Ct", "m^3/(s Pa)", (5.0e-16, 5.0e-10, 5.0e-9), "Figs. 6-7",
-           "severity rises with the leakage Ct",
-           "convergent -> multi-period vibration as Ct grows"),
-    _study("KP", "KP", "V/m", (1.0e5, 3.5e6, 3.9e6), "Figs. 8-9",
-           "severity rises with the gain KP",
-           "convergent -> periodic -> quasi-periodic as KP grows"),
-)
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env.analysis.dynamics import classify_motion
-from millvib_env.analysis.paper import PAPER_STUDIES
+from millvib_env.analysis.studies import PAPER_STUDIES
 from millvib_env.plant.integrate import SimResult, simulate
 
 __all__ = ["SolverRun", "SOLVERS", "run_solver_study", "verdicts", "format_solver_table", "plot_solver_study"]

@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 from scipy import signal as ssig
 
-from millvib_env.control.policies import GainTable, PerEnvGains
+from millvib_env.control.base import GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
 from millvib_env.params import MillParams
 from millvib_env.plant.model import A_QL, C_UEXT, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs

@@ -22,13 +22,13 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 from millvib_env._paths import agents_dir, config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.control.base import Controller, ControllerLoop, GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig, load_env_config
 from millvib_env.params import PAPER_GAINS
@@ -57,46 +57,6 @@ BASELINES = {
 REFERENCE = "pid-pf-robust"
 
 
-class Controller:
-    """Common interface: `predict` as in SB3, plus hooks the evaluation loop calls."""
-
-    name = "controller"
-    env_id = "MillVib-GainSchedule-v0"
-    env_kwargs: dict = {}
-    recurrent = False
-    #: True: the evaluation loop asks the env for every step's measured signals (info["signals"])
-    needs_signals = False
-    task: str | None = None
-
-    def env_kwargs_for(self, task: str | None = None, env_kwargs: dict | None = None) -> dict:
-        """The environment keyword arguments this controller runs with on `task`: the task's config,
-        then the controller's own settings (its action, observation, training reward), then `env_kwargs`."""
-        from millvib_env.envs.config import _merge
-
-        kwargs = {"config": get_task(task).config} if task is not None else {}
-        return _merge(_merge(kwargs, self.env_kwargs), env_kwargs or {})
-
-    def make_env(self, **env_kwargs):
-        """The Gymnasium environment this controller runs in (its task's config and its own settings,
-        the signals it measures switched on), wrapped so that the calls it needs on reset and step
-        are made for it: a plain loop ``obs, info = env.reset(seed=s)``, ``action, _ =
-        ctrl.predict(obs)``, ``env.step(action)`` gives the benchmark's episode on seed s."""
-        return ControllerLoop(gym.make(self.env_id, **self.env_kwargs_for(self.task, env_kwargs)), self)
-
-    def on_reset(self, infos: Sequence[dict], indices: Sequence[int]) -> None:
-        """Called with the reset infos of the environments that just started an episode."""
-
-    def on_step(self, infos: Sequence[dict]) -> None:
-        """Called after every step with the step's infos (one per environment)."""
-
-    def episode_extras(self, i: int) -> dict:
-        """Extra per-episode numbers of environment i (e.g. an estimator's error), at the episode's end."""
-        return {}
-
-    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        raise NotImplementedError
-
-
 class FixedGainPolicy(Controller):
     """A fixed-gain controller. A PID holds the action that maps to its gains in the task's env; a
     PID with pressure feedback (4 gains) or force feedforward (5) runs in an env whose action is
@@ -121,67 +81,6 @@ class FixedGainPolicy(Controller):
 
     def __repr__(self) -> str:
         return f"FixedGainPolicy({self.name}, gains={np.array2string(self.gains, precision=3)})"
-
-
-class PerEnvGains(Controller):
-    """A controller that holds one action per environment, set from each plant's (c1, Ct)."""
-
-    gain_map: GainMap
-
-    def _ensure(self, n: int) -> None:
-        have = 0 if getattr(self, "_actions", None) is None else self._actions.shape[0]
-        if have < n:
-            grown = np.zeros((n, self.gain_map.dim), dtype=np.float32)
-            if have:
-                grown[:have] = self._actions
-            self._actions = grown
-            self._plant = getattr(self, "_plant", []) + [None] * (n - have)
-
-    def gains_for(self, c1: float, ct: float) -> np.ndarray:
-        raise NotImplementedError
-
-    def _set(self, i: int, params: dict) -> None:
-        key = (params["c1"], params["Ct"])
-        if self._plant[i] != key:  # the plant changed (a new episode, or a change within one)
-            self._plant[i] = key
-            self._actions[i] = self.gain_map.action(self.gains_for(*key))
-
-    def on_reset(self, infos, indices) -> None:
-        self._ensure(max(indices) + 1)
-        for info, i in zip(infos, indices):
-            self._set(i, info["params"])
-
-    def on_step(self, infos) -> None:
-        self._ensure(len(infos))
-        for i, info in enumerate(infos):
-            self._set(i, info["params"])
-
-    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        if getattr(self, "_actions", None) is None:
-            what = "the measured signals" if self.needs_signals else "the episode's true c1 and Ct"
-            raise ValueError(f"{self.name} reads {what} through on_reset(infos, indices) after every reset and "
-                             "on_step(infos) after every step: run it in env = ctrl.make_env(), which makes those "
-                             "calls (the benchmark's evaluation loop makes them too)")
-        obs = np.asarray(observation)
-        return (self._actions[0].copy() if obs.ndim == 1 else self._actions[: obs.shape[0]].copy()), state
-
-
-class GainTable:
-    """Gains tuned offline on a (log c1, log Ct) grid, interpolated bilinearly in log gains."""
-
-    def __init__(self, c1_grid: Sequence[float], ct_grid: Sequence[float], log_gains: np.ndarray):
-        from scipy.interpolate import RegularGridInterpolator
-
-        self.c1_grid, self.ct_grid = np.asarray(c1_grid, float), np.asarray(ct_grid, float)
-        self.log_gains = np.asarray(log_gains, float)  # (n_c1, n_ct, 3), log10 of KP, KI, KD
-        self._lo = np.log([self.c1_grid[0], self.ct_grid[0]])
-        self._hi = np.log([self.c1_grid[-1], self.ct_grid[-1]])
-        self._interp = RegularGridInterpolator((np.log(self.c1_grid), np.log(self.ct_grid)), self.log_gains)
-
-    def __call__(self, c1: float, ct: float) -> np.ndarray:
-        """(KP, KI, KD) for the plant (c1, Ct); plants outside the grid take its edge."""
-        point = np.clip(np.log([c1, ct]), self._lo, self._hi)
-        return 10.0 ** self._interp(point[None, :])[0]
 
 
 class OraclePolicy(PerEnvGains):
@@ -241,7 +140,7 @@ class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
     def __init__(self, folder: str | Path):
-        from millvib_env.training.manifest import verify_agent
+        from millvib_env.control.manifest import verify_agent
 
         folder = Path(folder)
         card_path = folder / "card.json"
@@ -290,7 +189,7 @@ class AgentPolicy(Controller):
             raise ValueError(f"{card_path}: normalize = {normalize!r} is invalid: 'None' or the VecNormalize "
                              "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
         if normalize.strip() not in ("None", "False", "", "{}"):
-            from millvib_env.training.normalization import STATS_FILE, load_obs_stats
+            from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 
             self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
 
@@ -313,26 +212,6 @@ class AgentPolicy(Controller):
                 return action, None
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
         return self.model.predict(obs, deterministic=deterministic)
-
-
-class ControllerLoop(gym.Wrapper):
-    """A controller's environment for a plain Gymnasium loop (`Controller.make_env`): switches on the
-    signals it measures and calls its on_reset / on_step hooks, as the benchmark's evaluation loop does."""
-
-    def __init__(self, env: gym.Env, controller: Controller):
-        super().__init__(env)
-        self.controller = controller
-        env.unwrapped.core.record_signals = bool(controller.needs_signals)
-
-    def reset(self, **kwargs):
-        obs, info = self.env.reset(**kwargs)
-        self.controller.on_reset([info], [0])
-        return obs, info
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        self.controller.on_step([info])
-        return obs, reward, terminated, truncated, info
 
 
 def load_control_config(task: str = "startup") -> dict[str, Any]:

@@ -27,7 +27,7 @@ import numpy as np
 
 from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
-from millvib_env.training.manifest import EVAL_CURVE
+from millvib_env.control.manifest import EVAL_CURVE
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
@@ -77,7 +77,7 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
 
-    from millvib_env.training.normalization import STATS_FILE, save_obs_stats
+    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
 
     class FixedPlantsEval(base):
         best_timesteps = 0
@@ -262,7 +262,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
-    from millvib_env.training.normalization import STATS_FILE, save_obs_stats
+    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
 
     if isinstance(venv, VecNormalize):
         venv.save(str(run / "vecnormalize.pkl"))
