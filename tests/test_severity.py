@@ -93,3 +93,52 @@ def test_iso_10816_3_zones():
         iso_zone(1.0, "group9")
     with pytest.raises(ValueError, match="severity"):
         iso_zone(float("nan"))
+
+
+@pytest.mark.parametrize("edit, key", [
+    ("boundaries_mm_s: [2.3, 4.5, 7.1]", "zones.group1_rigid.boundaries_mm_s"),
+    ("band_hz: [10.0, 1000.0]", "band_hz"),
+    ("default_class: group1_rigid", "default_class"),
+])
+def test_a_wrong_severity_config_value_is_refused_naming_its_key(tmp_path, monkeypatch, edit, key):
+    import shutil
+
+    from millvib_env import severity
+    from millvib_env._paths import config_dir
+
+    bad = {"boundaries_mm_s: [2.3, 4.5, 7.1]": "boundaries_mm_s: [4.5, .nan, 2.3]",
+           "band_hz: [10.0, 1000.0]": "band_hz: [1000.0, 10.0]",
+           "default_class: group1_rigid": "default_class: group9"}[edit]
+    shutil.copytree(config_dir(), tmp_path / "configs")
+    path = tmp_path / "configs" / "severity.yaml"
+    path.write_text(path.read_text().replace(edit, bad, 1))
+    monkeypatch.setenv("MILLVIB_CONFIGS", str(tmp_path / "configs"))
+    severity._load_severity_config.cache_clear()
+    try:
+        with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+            severity.iso_zone(3.0)
+    finally:
+        monkeypatch.undo()
+        severity._load_severity_config.cache_clear()
+
+
+def test_the_severity_band_is_the_configs(tmp_path, monkeypatch):
+    import shutil
+
+    from millvib_env import severity
+    from millvib_env._paths import config_dir
+
+    fs, t = 10000.0, np.arange(0, 1.0, 1e-4)
+    acc = 2 * np.pi * 500.0 * np.cos(2 * np.pi * 500.0 * t) * 1e-3  # a 500 Hz, 1 mm/s-amplitude velocity
+    before = severity.vibration_severity(acc, fs)
+    shutil.copytree(config_dir(), tmp_path / "configs")
+    path = tmp_path / "configs" / "severity.yaml"
+    path.write_text(path.read_text().replace("band_hz: [10.0, 1000.0]", "band_hz: [10.0, 400.0]", 1))
+    monkeypatch.setenv("MILLVIB_CONFIGS", str(tmp_path / "configs"))
+    severity._load_severity_config.cache_clear()
+    try:
+        assert severity.severity_band() == (10.0, 400.0)
+        assert before > 0.5 and severity.vibration_severity(acc, fs) < 0.1 * before  # 500 Hz lies outside the band
+    finally:
+        monkeypatch.undo()
+        severity._load_severity_config.cache_clear()

@@ -25,7 +25,7 @@ import numpy as np
 
 from millvib_env._paths import write_text_atomic
 from millvib_env.analysis.paper import PAPER_STUDIES
-from millvib_env.params import MillParams, PIDGains
+from millvib_env.params import MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import simulate, simulate_batch
 
 __all__ = ["bench_plant", "bench_envs", "random_plants", "format_plant_bench", "format_env_bench"]
@@ -34,8 +34,8 @@ __all__ = ["bench_plant", "bench_envs", "random_plants", "format_plant_bench", "
 def random_plants(n: int, seed: int = 0, kp_range: tuple[float, float] = (1e4, 4e6)):
     """n plants and PID gains log-uniform over c1 in [1.25e5, 2.25e6], Ct in [5e-16, 5e-9], KP."""
     rng = np.random.default_rng(seed)
-    c1 = np.exp(rng.uniform(np.log(1.25e5), np.log(2.25e6), n))
-    ct = np.exp(rng.uniform(np.log(5e-16), np.log(5e-9), n))
+    c1 = np.exp(rng.uniform(*np.log(studied_range("c1")), n))
+    ct = np.exp(rng.uniform(*np.log(studied_range("Ct")), n))
     kp = np.exp(rng.uniform(np.log(kp_range[0]), np.log(kp_range[1]), n))
     return [MillParams(c1=a, Ct=b) for a, b in zip(c1, ct)], [PIDGains(k, 1e-3) for k in kp]
 

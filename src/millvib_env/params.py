@@ -34,8 +34,11 @@ __all__ = [
 ]
 
 
-def _p(default: float, unit: str, doc: str, rule: str) -> Any:
-    return field(default=default, metadata={"unit": unit, "doc": doc, "rule": rule})
+def _p(default: float, unit: str, doc: str, rule: str, studied: tuple[float, float] | None = None) -> Any:
+    meta = {"unit": unit, "doc": doc, "rule": rule}
+    if studied is not None:
+        meta["studied"] = studied
+    return field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)
@@ -49,10 +52,12 @@ class MillParams:
     Ap: float = _p(0.19635, "m^2", "rod-less chamber area (0.5 m bore)", "> 0")
     Ab: float = _p(0.030159, "m^2", "rod chamber effective area", ">= 0")
     mt: float = _p(1200.0, "kg", "equivalent mass of piston and load roll system", "> 0")
-    c1: float = _p(2.25e6, "N s/m", "equivalent viscous damping (uncertain: temperature, wear)", ">= 0")
+    c1: float = _p(2.25e6, "N s/m", "equivalent viscous damping (uncertain: temperature, wear)", ">= 0",
+                   studied=(1.25e5, 2.25e6))
     k1: float = _p(2.5e9, "N/m", "load (mill stand) spring stiffness", ">= 0")
     FL: float = _p(2.0e6, "N", "external (rolling) force opposing extension", ">= 0")
-    Ct: float = _p(5.0e-16, "m^3/(s Pa)", "internal leakage coefficient (uncertain: seal wear)", ">= 0")
+    Ct: float = _p(5.0e-16, "m^3/(s Pa)", "internal leakage coefficient (uncertain: seal wear)", ">= 0",
+                   studied=(5.0e-16, 5.0e-9))
     ps: float = _p(1.8e7, "Pa", "mean supply pressure", "> pt")
     pt: float = _p(0.0, "Pa", "return (tank) pressure", ">= 0")
     pb: float = _p(1.0e6, "Pa", "rod chamber back pressure (held constant)", ">= 0")
@@ -200,6 +205,18 @@ class PIDGains:
 
 #: The paper's nominal controller (given with its KP study): KP = 1e5, KI = 0.001, KD = 0.
 PAPER_GAINS = PIDGains(kp=1.0e5, ki=1.0e-3, kd=0.0)
+
+
+def studied_range(name: str) -> tuple[float, float]:
+    """The range over which the paper studies an uncertain parameter (c1: 1.25e5-2.25e6 N s/m, Ct:
+    5e-16-5e-9 m^3/(s Pa)): the one home of those numbers in the code (the tasks' draws are in
+    configs/env/)."""
+    import dataclasses
+
+    for f in dataclasses.fields(MillParams):
+        if f.name == name and "studied" in f.metadata:
+            return tuple(f.metadata["studied"])
+    raise ValueError(f"parameter {name!r} has no studied range; those with one: c1, Ct")
 
 
 def list_presets() -> list[str]:

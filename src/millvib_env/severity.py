@@ -53,7 +53,13 @@ Quantity = Literal["acceleration", "velocity", "displacement"]
 _POWER = {"acceleration": -1, "velocity": 0, "displacement": 1}
 
 
-def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float], quantity: str) -> np.ndarray:
+def severity_band() -> tuple[float, float]:
+    """The severity's frequency band (Hz), `band_hz` of configs/severity.yaml (ISO 20816-3: 10-1000 Hz),
+    the default of every function here, of the environments' reward filter and of `SimResult.severity`."""
+    return _load_severity_config()["band"]
+
+
+def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | None, quantity: str) -> np.ndarray:
     x = np.asarray(signal, dtype=np.float64)
     if x.ndim != 1:
         raise ValueError(f"signal must be 1-D, got shape {x.shape}")
@@ -65,7 +71,7 @@ def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float], quan
         raise ValueError("signal contains NaN or inf (a diverged simulation has no severity)")
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"fs = {fs!r} Hz is invalid: must be finite and > 0")
-    lo, hi = band
+    lo, hi = band if band is not None else severity_band()
     if not (0 <= lo < hi):
         raise ValueError(f"band = {band!r} is invalid: need 0 <= low < high (Hz)")
     if hi > fs / 2:
@@ -99,12 +105,13 @@ def _smooth_extension(x: np.ndarray, fs: float, quantity: str) -> np.ndarray:
 
 
 def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity = "acceleration",
-                           band: tuple[float, float] = (10.0, 1000.0)) -> tuple[np.ndarray, np.ndarray]:
+                           band: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One-sided velocity spectrum of the extended record (2n samples), restricted to `band`.
 
     Returns (frequencies Hz, V_k); bins outside the band are zero. Acceleration is divided by
     j*omega, displacement multiplied by it.
     """
+    band = severity_band() if band is None else band
     x = _check_signal(signal, fs, band, quantity)
     ext = _smooth_extension(x, fs, quantity)
     spec = sfft.rfft(ext)
@@ -117,7 +124,7 @@ def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity 
 
 
 def vibration_severity(signal: np.ndarray, fs: float, *, quantity: Quantity = "acceleration",
-                       band: tuple[float, float] = (10.0, 1000.0)) -> float:
+                       band: tuple[float, float] | None = None) -> float:
     """Vibration severity in mm/s: RMS of the band-limited vibration velocity.
 
     Parameters
@@ -142,7 +149,7 @@ def _mean_square(vel: np.ndarray, n: int) -> float:
 
 
 def band_levels(signal: np.ndarray, fs: float, *, quantity: Quantity = "acceleration",
-                line_hz: float = 115.5, band: tuple[float, float] = (10.0, 1000.0),
+                line_hz: float = 115.5, band: tuple[float, float] | None = None,
                 low_band: tuple[float, float] = (10.0, 100.0), line_width_hz: float | None = None) -> dict[str, float]:
     """Velocity RMS (mm/s) of a record: broadband (`band`), the pump line and the low band.
 
@@ -155,6 +162,7 @@ def band_levels(signal: np.ndarray, fs: float, *, quantity: Quantity = "accelera
     The squares of the parts are parts of the broadband square (the line and the low band overlap
     only if line_hz < 100 Hz).
     """
+    band = severity_band() if band is None else band
     freqs, vel = band_velocity_spectrum(signal, fs, quantity=quantity, band=band)
     n = 2 * len(signal)
     resolution = fs / n
@@ -195,13 +203,53 @@ class IsoZoneTable:
         return "D"
 
 
+def _bad(key: str, value, allowed: str) -> ValueError:
+    return ValueError(f"configs/severity.yaml {key} = {value!r} is invalid: {allowed}")
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 @lru_cache(maxsize=None)
+def _load_severity_config() -> dict:
+    """configs/severity.yaml, every value checked (a wrong zone boundary would grade silently wrong)."""
+    path = config_dir() / "severity.yaml"
+    try:
+        data = load_yaml(path)
+    except Exception as err:  # unreadable, a YAML syntax error, or a !!python tag the safe loader refuses
+        raise ValueError(f"{path} cannot be read: {str(err).splitlines()[0] if str(err) else type(err).__name__}") \
+            from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must be a mapping with keys source, band_hz, default_class, zones")
+    source = data.get("source", "")
+    if not isinstance(source, str):
+        raise _bad("source", source, "a text naming the standard")
+    band = data.get("band_hz")
+    if not (isinstance(band, list) and len(band) == 2 and all(_finite(b) for b in band) and 0 < band[0] < band[1]):
+        raise _bad("band_hz", band, "a [low, high] pair in Hz with 0 < low < high")
+    zones = data.get("zones")
+    if not isinstance(zones, dict) or not zones:
+        raise _bad("zones", zones, "a mapping of machine classes, each with boundaries_mm_s")
+    tables = {}
+    for name, t in zones.items():
+        b = t.get("boundaries_mm_s") if isinstance(t, dict) else None
+        if not (isinstance(b, list) and len(b) == 3 and all(_finite(v) for v in b) and 0 < b[0] < b[1] < b[2]):
+            raise _bad(f"zones.{name}.boundaries_mm_s", b, "three boundaries A/B, B/C, C/D in mm/s, finite, > 0 "
+                                                           "and increasing")
+        description = t.get("description", "")
+        if not isinstance(description, str):
+            raise _bad(f"zones.{name}.description", description, "a text")
+        tables[name] = IsoZoneTable(str(name), tuple(float(v) for v in b), source, description)
+    default = data.get("default_class")
+    if default not in tables:
+        raise _bad("default_class", default, f"one of the zones {sorted(tables)}")
+    return {"band": (float(band[0]), float(band[1])), "default": default, "source": source, "tables": tables}
+
+
 def _load_iso_tables() -> tuple[str, str, dict[str, IsoZoneTable]]:
-    data = load_yaml(config_dir() / "severity.yaml")
-    tables = {name: IsoZoneTable(name, tuple(float(b) for b in t["boundaries_mm_s"]), data["source"],
-                                 t.get("description", ""))
-              for name, t in data["zones"].items()}
-    return data["default_class"], data["source"], tables
+    cfg = _load_severity_config()
+    return cfg["default"], cfg["source"], cfg["tables"]
 
 
 def iso_table(name: str | None = None) -> IsoZoneTable:

@@ -26,7 +26,7 @@ import numpy as np
 from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
-from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
+from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import SimResult, simulate_batch
 from millvib_env.severity import iso_zone
 
@@ -124,7 +124,7 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
 
-    c1s = np.geomspace(1.25e5, 2.25e6, n_c1)
+    c1s = np.geomspace(*studied_range("c1"), n_c1)
     kps = np.geomspace(1e4, 1e7, n_kp)
     params = [MillParams(c1=c) for c in c1s for _ in kps]
     gains = [PIDGains(k, PAPER_GAINS.ki) for _ in c1s for k in kps]
@@ -171,8 +171,8 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool) -> tuple[
 
     from millvib_env.analysis.linear import stability_map
 
-    c1s = np.geomspace(1.25e5, 2.25e6, n_c1)
-    cts = np.geomspace(5e-16, 5e-9, n_ct)
+    c1s = np.geomspace(*studied_range("c1"), n_c1)
+    cts = np.geomspace(*studied_range("Ct"), n_ct)
     stick = stability_map(c1s, cts, friction="stick", progress=progress)
     slide = stability_map(c1s, cts, friction="sliding", progress=progress)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))

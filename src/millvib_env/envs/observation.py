@@ -10,10 +10,12 @@ import math
 
 import numpy as np
 
+from millvib_env.params import studied_range
+
 __all__ = ["slog", "OBS_SCALES", "PARAM_OBS_RANGES", "Observer"]
 
 #: with observe_params, log c1 and log Ct are mapped linearly from these ranges to [-1, 1]
-PARAM_OBS_RANGES = {"c1": (1.25e5, 2.25e6), "Ct": (5e-16, 5e-9)}
+PARAM_OBS_RANGES = {"c1": studied_range("c1"), "Ct": studied_range("Ct")}
 
 # observation scales: (name, unit, q0, q_max) for the signed-log channels
 OBS_SCALES = {

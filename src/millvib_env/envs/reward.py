@@ -27,7 +27,9 @@ class Reward:
         self.trk_scale = spec["tracking_scale_um"] * 1e-6
         self.penalty = spec["terminal_penalty"]
         self.ema_gain = 1.0 - math.exp(-period_s / spec["vib_time_constant_s"])
-        self.sos = ssig.butter(2, (10.0, 1000.0), btype="bandpass", fs=sample_rate_hz, output="sos")
+        from millvib_env.severity import severity_band
+
+        self.sos = ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz, output="sos")
         self.zi = np.zeros((self.sos.shape[0], n, 2))
         self.vib_ema = np.zeros(n)
 

@@ -90,7 +90,7 @@ class SimResult:
         return slice(k0, None)
 
     def severity(self, *, t_start: float = 0.0, quantity: str = "acceleration",
-                 band: tuple[float, float] = (10.0, 1000.0)) -> float:
+                 band: tuple[float, float] | None = None) -> float:
         """Vibration severity (mm/s) of the piston from `t_start` on (see `vibration_severity`).
 
         Raises ValueError for a diverged run (its samples after divergence are NaN).

@@ -18,12 +18,13 @@ from typing import Sequence
 
 import numpy as np
 
+from millvib_env.params import studied_range
 from millvib_env.tasks import get_task
 
 __all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
 
 #: the swept parameters' ranges: c1 and Ct the paper's (log-uniform), the others +-20 % of Table 1
-RANGES = {"c1": ("loguniform", 1.25e5, 2.25e6), "Ct": ("loguniform", 5e-16, 5e-9),
+RANGES = {"c1": ("loguniform", *studied_range("c1")), "Ct": ("loguniform", *studied_range("Ct")),
           "beta_e": ("uniform", 5.6e8, 8.4e8), "mt": ("uniform", 960.0, 1440.0), "FL": ("uniform", 1.6e6, 2.4e6)}
 #: sweep plants start this far into the task's held-out range (clear of the benchmark's first seeds)
 SEED_OFFSET = 40_000
