@@ -33,13 +33,16 @@ EXTRA = {
 }
 
 
-def test_fixed_gain_policy_holds_its_gains():
-    cfg = load_env_config("default")
+def test_fixed_gain_policy_runs_exactly_its_gains_even_outside_the_action_bounds():
+    pol = FixedGainPolicy("x", PIDGains(3e5, 1e4, 10.0))
+    cfg = load_env_config("default", **pol.env_kwargs)
     core = MillVibCore(1, "gain", cfg)
-    pol = FixedGainPolicy("x", PIDGains(3e5, 1e4, 10.0), GainMap.from_config(cfg))
     action, _ = pol.predict(np.zeros((5, 8)))
     assert action.shape == (5, 3)
-    np.testing.assert_allclose(core.gains_from_action(action[0]), [3e5, 1e4, 10.0], rtol=1e-5)
+    assert np.array_equal(core.gains_from_action(action[0]), [3e5, 1e4, 10.0])  # exact, not to rounding
+    big = FixedGainPolicy("y", [1e12, 1e-3, 0.0])  # beyond KP's 1e7 bound: run as given, not clipped
+    core = MillVibCore(1, "gain", load_env_config("default", **big.env_kwargs))
+    assert core.gains_from_action(big.predict(np.zeros(8))[0])[0] == 1e12
 
 
 def test_oracle_needs_and_uses_the_true_parameters():

@@ -241,6 +241,10 @@ def check_output(path: str | os.PathLike | None, flag: str, *, folder: bool = Fa
     p = Path(path)
     if str(path).strip() == "":
         raise ValueError(f"{flag} = {str(path)!r} is invalid: an empty path")
+    long = [part for part in p.parts if len(os.fsencode(part)) > 255]
+    if long:
+        raise ValueError(f"{flag}: the name {long[0][:40]!r}... is {len(os.fsencode(long[0]))} bytes long; a file or "
+                         "folder name may have at most 255")
     if p.exists():
         if folder and not p.is_dir():
             raise ValueError(f"{flag} {p}: a file is in the way; a folder is needed")
@@ -251,6 +255,9 @@ def check_output(path: str | os.PathLike | None, flag: str, *, folder: bool = Fa
         parent = parent.parent
     if not parent.is_dir():
         raise ValueError(f"{flag} {p}: {parent} is a file, so the path cannot be created")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ValueError(f"{flag} {p}: {parent} is not writable")
+    try:  # really try: as root os.access says yes to /proc and to read-only file systems
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as err:
+        raise ValueError(f"{flag} {p}: {parent} is not writable ({err.strerror or err})") from None
     return p

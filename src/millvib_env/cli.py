@@ -237,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="one closed-loop run", description=(
         "Simulate one closed-loop plant from the paper's initial state (x0 = 1 mm at rest) and print its "
-        "vibration severity (mm/s RMS, 10-1000 Hz), ISO 20816-3 zone, kind of motion over the last 40 %% of "
+        "vibration severity (mm/s RMS, 10-1000 Hz), ISO 20816-3 zone, kind of motion over the last 40 % of "
         "the run and RMS tracking error."))
     _add_plant_args(p)
     p.add_argument("--t-end", type=float, default=1.0, help="simulated time, s (default 1.0)")
@@ -280,7 +280,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_bench)
 
-    p = sub.add_parser("params", help="list the plant parameters")
+    p = sub.add_parser("params", help="list the plant parameters", description=(
+        "List every field of MillParams (paper Table 1 and the project's additions): symbol, default, unit, "
+        "meaning and the allowed range; a value outside it raises a one-line error naming the field. "
+        "Presets in configs/plant/ (paper.yaml is Table 1) set them; --set NAME=VALUE overrides one."))
     p.set_defaults(func=_cmd_params)
 
     p = sub.add_parser("scenarios", help="list the named failure scenarios", description=(
@@ -330,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="controllers over many plants", description=(
         "A robustness sweep: every controller on N plants of a task with the swept parameters drawn over wide "
-        "ranges (c1, Ct: the paper's, log-uniform; beta_e, mt, FL: +-20 %% of Table 1), from held-out seeds. Writes "
+        "ranges (c1, Ct: the paper's, log-uniform; beta_e, mt, FL: +-20 % of Table 1), from held-out seeds. Writes "
         "plants.csv, summary.json and maps.png to --out. Runs in local processes (--jobs) or on Ray (--ray)."))
     p.add_argument("--controllers", nargs="+", required=True, help="baselines or agents, as for benchmark")
     p.add_argument("--plants", type=int, required=True, help="number of plants (episodes per controller)")

@@ -22,6 +22,21 @@ from typing import Any, Callable, Sequence
 __all__ = ["run_jobs", "ray_available"]
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A HOST:PORT address must answer within `timeout_s` (Ray itself waits minutes for a dead one)."""
+    import socket
+
+    target = address.split("://", 1)[-1]
+    host, sep, port = target.rpartition(":")
+    if address == "auto" or not sep or not port.isdigit():
+        return  # "auto" or a form Ray resolves itself
+    try:
+        socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s).close()
+    except OSError as err:
+        raise ValueError(f"--ray {address}: no Ray cluster answers there within {timeout_s:g} s ({err.strerror or err})") \
+            from None
+
+
 def ray_available() -> bool:
     try:
         import ray  # noqa: F401
@@ -41,6 +56,7 @@ def _init_ray(address: str):
     if address in ("", "local"):
         ray.init(num_cpus=os.cpu_count(), include_dashboard=False, log_to_driver=False, runtime_env=env)
     else:
+        _check_reachable(address)
         try:
             ray.init(address=address, log_to_driver=False, runtime_env=env)
         except (ConnectionError, RuntimeError, ValueError) as err:

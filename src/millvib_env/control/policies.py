@@ -58,20 +58,18 @@ REFERENCE = "pid-pf-robust"
 
 
 class FixedGainPolicy(Controller):
-    """A fixed-gain controller. A PID holds the action that maps to its gains in the task's env; a
-    PID with pressure feedback (4 gains) or force feedforward (5) runs in an env whose action is
-    relative to its gains with zero range (`fixed_actions`), so its gains are exact."""
+    """A fixed-gain controller (a PID, + pressure feedback with 4 gains, + force feedforward with 5). It
+    runs in an env whose action is relative to its gains with zero range (`fixed_actions`), so the
+    gains that run are exactly the ones given: never clipped to an action's bounds (a 1e12 gain in a
+    config runs as 1e12, or is refused if it is negative or not finite)."""
 
-    def __init__(self, name: str, gains, gain_map: GainMap | None, description: str = ""):
+    def __init__(self, name: str, gains, gain_map: GainMap | None = None, description: str = ""):
+        from millvib_env.envs.actions import fixed_actions
+
         self.name, self.description = name, description
         self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)
-        if len(self.gains) > 3:
-            from millvib_env.envs.actions import fixed_actions
-
-            self.env_kwargs = {"actions": fixed_actions(self.gains)}
-            self._action = np.zeros(len(self.gains), dtype=np.float32)
-        else:
-            self._action = gain_map.action(self.gains).astype(np.float32)
+        self.env_kwargs = {"actions": fixed_actions(self.gains)}
+        self._action = np.zeros(len(self.gains), dtype=np.float32)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(observation)

@@ -78,7 +78,14 @@ class GainMap:
                 raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: it needs "
                                  f"{len(names)} gains {list(names)} (pressure_feedback / force_feedforward set "
                                  "the entries)")
-            decades = np.broadcast_to(np.asarray(rel.get("decades", 1.0), float), base.shape).copy()
+            try:
+                decades = np.broadcast_to(np.asarray(rel.get("decades", 1.0), float), base.shape).copy()
+            except ValueError:
+                raise ValueError(f"env config actions.relative.decades = {rel.get('decades')!r} is invalid: one "
+                                 f"number or {len(names)} of them, one per gain {list(names)}") from None
+            if np.any((base <= 0) & (decades > 0)):
+                raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: a gain with a "
+                                 "log offset (decades > 0) needs a base > 0")
             return cls(names, lo, hi, True, base, decades)
         return cls(names, lo, hi, acts.get("scale", "log") == "log")
 
@@ -117,8 +124,8 @@ class GainMap:
             g = np.concatenate([g, np.broadcast_to(fill, g.shape[:-1] + fill.shape)], axis=-1)
         g = g[..., :self.dim]
         if self.relative:
-            offset = np.log10(np.maximum(g, 1e-300) / self.base)
             with np.errstate(divide="ignore", invalid="ignore"):
+                offset = np.log10(np.maximum(g, 1e-300) / self.base)
                 a = np.where(self.decades > 0, offset / np.where(self.decades > 0, self.decades, 1.0), 0.0)
             return np.clip(a, -1.0, 1.0)
         if self.log:

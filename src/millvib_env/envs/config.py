@@ -24,6 +24,8 @@ __all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "
 CONFIG_ALIASES = {"default": "startup"}
 #: episodes longer than this are refused before anything is allocated (the severity record is kept whole)
 MAX_EPISODE_S = 60.0
+#: the shortest episode that has a vibration severity: one period of the band's 10 Hz low edge
+MIN_EPISODE_S = 0.1
 
 
 def list_env_configs() -> list[str]:
@@ -250,9 +252,10 @@ def _relative(path: str, value: Any) -> None:
 
 def _base_gains(path: str, value: Any) -> None:
     if not isinstance(value, (list, tuple)) or not 3 <= len(value) <= 5:
-        _fail(path, value, "must be [KP, KI, KD] plus KPL and KFF where switched on, each > 0")
+        _fail(path, value, "must be [KP, KI, KD] plus KPL and KFF where switched on, each >= 0 (> 0 where its "
+                           "decades > 0)")
     for k, g in enumerate(value):
-        _number(f"{path}[{k}]", g, lo=0.0, lo_open=True)
+        _number(f"{path}[{k}]", g, lo=0.0)
 
 
 def _decades(path: str, value: Any) -> None:
@@ -403,7 +406,8 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
     missing = sorted(_TOP_KEYS - set(data))
     if missing:
         raise ValueError(f"env config is missing key(s) {missing}")
-    _number("episode_s", data["episode_s"], lo=0.0, hi=MAX_EPISODE_S, lo_open=True)
+    # an episode shorter than one period of the severity band's low edge (0.1 s for 10 Hz) has no severity
+    _number("episode_s", data["episode_s"], lo=MIN_EPISODE_S, hi=MAX_EPISODE_S)
     for key in ("control_dt_s", "decision_dt_s"):
         _number(key, data[key], lo=0.0, hi=1.0, lo_open=True)
     _number("sample_rate_hz", data["sample_rate_hz"], lo=2500.0, hi=1e6)

@@ -246,6 +246,8 @@ def format_table(result: dict) -> str:
              f"CVaR-20 vs {ref} | P(better than {ref}) | vs pid-robust | score | severity (mm/s) | "
              "tracking RMS (um) | diverged |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    if result.get("title"):  # another command's table (the sweep) names its own plants
+        lines[0] = result["title"]
 
     def pct(d: dict | None, key: str, ci: str) -> str:
         return f"{100 * d[key]:+.1f} % [{100 * d[ci][0]:+.1f}, {100 * d[ci][1]:+.1f}]" if d else "-"

@@ -17,7 +17,7 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                        help="training seed, 0-49 (default 0); it picks the task's training and evaluation plants")
     seeds.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
                        help="several training seeds, each its own run folder and model card; run in --jobs local "
-                            "processes (with --save-dir D, seed s goes to D-s<s>)")
+                            "processes (with --save-dir D, seed s goes to D/seed-<s>/)")
     p.add_argument("--jobs", type=int, default=2,
                    help="local processes for --seeds (default 2: two trainings at a time, one plant thread each)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",

@@ -133,9 +133,15 @@ def sweep_from_cli(args) -> int:
     check_result_folder(args.out, "--out", "sweep")
     result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
                        ray=args.ray, processes=args.jobs, progress=not args.quiet)
+    from millvib_env.training.evaluate import COST_SCALES
+
     s = result["summary"]
-    print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"],
-                        "cost_scales": {"severity_mm_s": 4.5, "tracking_um": 10.0}, "controllers": s["controllers"]}))
+    ranges = ", ".join(f"{p} {lo:g}-{hi:g} ({kind})" for p, (kind, lo, hi) in s["ranges"].items())
+    title = (f"Sweep on task {s['task']}: {s['plants']} plants, episode seeds {s['seed']}-{s['seed'] + s['plants'] - 1} of "
+             f"its held-out range, with {ranges}. Cost = severity / {COST_SCALES['severity_mm_s']} mm/s + tracking "
+             f"RMS / {COST_SCALES['tracking_um']} um; [95 % bootstrap intervals]")
+    print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"], "title": title,
+                        "cost_scales": dict(COST_SCALES), "controllers": s["controllers"]}))
     files = write_sweep(result, args.out)
     print(f"wrote {len(files)} files to {args.out}")
     return 0

@@ -241,7 +241,12 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     else:
         if norm_kwargs is not None:
             venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
-        model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
+        try:
+            model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
+        except (TypeError, ValueError, AssertionError, KeyError) as err:  # a key or value SB3 refuses
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise ValueError(f"hyperparameters for {algo} on {env_id} ({config or 'the default file'}) are not "
+                             f"accepted by {cls.__name__}: {first}") from None
         if _zero_action_is_a_controller(env_id, env_kwargs):
             start_at_zero_action(model)
         done_steps = 0
