@@ -86,3 +86,24 @@ def test_adaptive_gives_the_fallback_until_it_has_seen_motion():
     assert np.isnan(ctrl.estimator.c1_hat[0]) or True  # reset after the episode; check the record instead
     assert np.isnan(recs[0]["c1_log_error"])  # never estimated: nothing moved
     np.testing.assert_allclose(ctrl._actions[0], ctrl.gain_map.action(ctrl.fallback), atol=1e-6)
+
+
+def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
+    import gymnasium as gym
+
+    from millvib_env.control.policies import load_controller
+    from millvib_env.envs.config import load_env_config
+
+    cfg = load_env_config("rolling", sample_rate_hz=20000)
+    ctrl = load_controller("pid-adaptive", task="rolling", config=cfg)
+    assert ctrl.estimator.fs == 20000
+    env = ctrl.make_env(sample_rate_hz=20000)
+    obs, _ = env.reset(seed=120000)
+    for _ in range(3):
+        obs, *_ = env.step(ctrl.predict(obs)[0])
+    wrong = load_controller("pid-adaptive", task="rolling")  # 10 kHz, in a 20 kHz env: refused, not biased
+    env = gym.make("MillVib-GainSchedule-v0", config="rolling", sample_rate_hz=20000)
+    loop = type(ctrl.make_env())(env, wrong)
+    obs, _ = loop.reset(seed=120000)
+    with pytest.raises(ValueError, match="sampled at 20000 Hz"):
+        loop.step(wrong.predict(obs)[0])

@@ -7,7 +7,12 @@ threads.passive_waiting()  # before numba's OpenMP pool starts: idle threads sle
 # isort: split
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, load_preset
 
-__version__ = "0.1.0"
+try:  # one home for the version: pyproject.toml, read from the installed package's metadata
+    from importlib.metadata import PackageNotFoundError, version as _version
+
+    __version__ = _version("millvib-env")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
 __all__ = ["MillParams", "PIDGains", "PAPER_GAINS", "load_preset", "__version__"]
 
 

@@ -147,6 +147,9 @@ class PlantEstimator:
     def update(self, i: int, sig: dict) -> None:
         p, dt = self.params, 1.0 / self.fs
         m = sig["x"].size
+        if m >= 2 and abs((sig["t"][1] - sig["t"][0]) * self.fs - 1.0) > 1e-6:
+            raise ValueError(f"pid-adaptive's estimator runs at {self.fs:g} Hz but the signals are sampled at "
+                             f"{1.0 / (sig['t'][1] - sig['t'][0]):g} Hz: build it with the env's sample_rate_hz")
         decay = math.exp(-m * dt / self.settings.tau_s)
         cols = [sig[k] for k in ("t", "x", "v", "pL", "u")]
         if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
@@ -194,12 +197,13 @@ class AdaptivePolicy(PerEnvGains):
     name = "pid-adaptive"
     needs_signals = True
 
-    def __init__(self, table: GainTable, gain_map: GainMap, settings: EstimatorSettings, params: MillParams):
+    def __init__(self, table: GainTable, gain_map: GainMap, settings: EstimatorSettings, params: MillParams,
+                 sample_rate_hz: float = 10_000.0):
         self.table, self.gain_map = table, gain_map
         self.prior = (float(np.sqrt(table.c1_grid[0] * table.c1_grid[-1])),
                       float(np.sqrt(table.ct_grid[0] * table.ct_grid[-1])))
         self.fallback = table(*self.prior)
-        self.estimator = PlantEstimator(params, settings)
+        self.estimator = PlantEstimator(params, settings, sample_rate_hz)
         self.nominal = params
         self._actions = None
 

@@ -128,6 +128,24 @@ class LQRPolicy(PerEnvGains):
         return g
 
 
+#: the algorithms an agent may be trained with (`millvib train --algo`)
+ALGOS = ("ppo", "sac", "recurrentppo")
+
+
+def algo_class(algo: str):
+    """The Stable-Baselines3 (or sb3-contrib) class of an algorithm name; imported only when asked for."""
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO
+    if algo == "sac":
+        from stable_baselines3 import SAC
+        return SAC
+    if algo == "recurrentppo":
+        from sb3_contrib import RecurrentPPO
+        return RecurrentPPO
+    raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
+
+
 #: what an agent's card may set in its environment: its action, observation and reward, never the
 #: episode (plants, disturbances, start, length) that every controller of the task must share
 AGENT_ENV_KEYS = frozenset({"config", "residual", "observe_params", "observe_phase", "actions", "observation",
@@ -163,15 +181,10 @@ class AgentPolicy(Controller):
                              "every controller of a task meets the same plants")
         if "config" in self.env_kwargs and self.env_kwargs["config"] != get_task(self.card.get("task", "startup")).config:
             raise ValueError(f"{card_path}: env_kwargs config {self.env_kwargs['config']!r} is not its task's")
-        algo = self.card["algo"].lower()
-        if algo == "ppo":
-            from stable_baselines3 import PPO as cls
-        elif algo == "sac":
-            from stable_baselines3 import SAC as cls
-        elif algo == "recurrentppo":
-            from sb3_contrib import RecurrentPPO as cls
-        else:
-            raise ValueError(f"unknown algo {algo!r} in {card_path}")
+        algo = str(self.card["algo"]).lower()
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
+        cls = algo_class(algo)
         self.recurrent = algo == "recurrentppo"
         model_path = folder / "model.zip"
         if not model_path.is_file():
@@ -371,7 +384,8 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
         from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
         entry = _entry(task, name)
-        ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]),
-                              load_env_config(get_task(task).config).base_params)
+        cfg = config or load_env_config(get_task(task).config)
+        ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]), cfg.base_params,
+                              sample_rate_hz=cfg.sample_rate_hz)
     ctrl.task = task
     return ctrl

@@ -31,7 +31,7 @@ from millvib_env.control.manifest import EVAL_CURVE
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
-ALGOS = ("ppo", "sac", "recurrentppo")
+from millvib_env.control.policies import ALGOS  # noqa: E402 (one list of algorithms)
 #: the files of an agent folder (`--save-dir`), which a new training of it replaces
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
@@ -39,16 +39,9 @@ N_VALIDATION = 40
 
 
 def _algo_class(algo: str):
-    if algo == "ppo":
-        from stable_baselines3 import PPO
-        return PPO
-    if algo == "sac":
-        from stable_baselines3 import SAC
-        return SAC
-    if algo == "recurrentppo":
-        from sb3_contrib import RecurrentPPO
-        return RecurrentPPO
-    raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
+    from millvib_env.control.policies import algo_class
+
+    return algo_class(algo)
 
 
 def resolve_named_gains(env_kwargs: dict, task: str) -> dict:

@@ -245,7 +245,8 @@ def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = AD
     table, gain_map = (oracle_table(task) if table is None else table), GainMap.from_config(cfg)
     costs = {}
     for tau in taus:
-        ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params)
+        ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params,
+                              sample_rate_hz=cfg.sample_rate_hz)
         recs = run_episodes(ctrl, list(seeds), task=task)
         costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
     tau = min(costs, key=costs.get)
