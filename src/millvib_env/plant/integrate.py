@@ -51,21 +51,17 @@ class SimResult:
 
     x (m), v (m/s), a (m/s^2), pL (Pa), z (m, LuGre bristle), uI (V, PID integral term),
     u (V, valve command), xv (m, spool), QL (m^3/s, valve flow), Ff (N, friction), ps (Pa, supply),
-    xd (m, set-point).
+    xd (m, set-point). The auxiliary outputs (a, u, xv, QL, Ff, ps: one `plant_rhs` evaluation per
+    sample, about as much work as the integration itself) are computed on first access, so a run
+    whose caller reads only the states costs only its integration.
     """
 
     t: np.ndarray
     x: np.ndarray
     v: np.ndarray
-    a: np.ndarray
     pL: np.ndarray
     z: np.ndarray
     uI: np.ndarray
-    u: np.ndarray
-    xv: np.ndarray
-    QL: np.ndarray
-    Ff: np.ndarray
-    ps: np.ndarray
     xd: np.ndarray
     params: MillParams
     gains: PIDGains
@@ -75,6 +71,22 @@ class SimResult:
     status: str = "ok"
     n_steps: int = 0  # integrator work: steps (fast) or right-hand-side evaluations (reference)
     info: dict = field(default_factory=dict)
+    _aux_fn: Callable[[], np.ndarray] | None = field(default=None, repr=False)
+    _aux: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def aux(self) -> np.ndarray:
+        """(n_t, 6): a, u, xv, QL, Ff, ps at every sample (computed once, on first access)."""
+        if self._aux is None:
+            self._aux = self._aux_fn()
+        return self._aux
+
+    a = property(lambda self: self.aux[:, 0], doc="piston acceleration (m/s^2)")
+    u = property(lambda self: self.aux[:, 1], doc="valve command (V)")
+    xv = property(lambda self: self.aux[:, 2], doc="spool displacement (m)")
+    QL = property(lambda self: self.aux[:, 3], doc="valve flow (m^3/s)")
+    Ff = property(lambda self: self.aux[:, 4], doc="seal friction (N)")
+    ps = property(lambda self: self.aux[:, 5], doc="supply pressure (Pa)")
 
     @property
     def dt(self) -> float:
@@ -146,14 +158,19 @@ class BatchResult:
     def __len__(self) -> int:
         return self.states.shape[0]
 
+    def _aux_of(self, i: int) -> np.ndarray:
+        if self._aux is not None:
+            return self._aux[i]
+        return kernel.aux_at(self.t, self.states[i], pack(self.params[i]), self.drive[i], self.xd[i])
+
     def __getitem__(self, i: int) -> SimResult:
-        s, a = self.states[i], self.aux[i]
+        s = self.states[i]
         arrays = {name: s[:, j] for j, name in enumerate(STATE_NAMES)}
-        arrays.update({name: a[:, j] for j, name in enumerate(AUX_NAMES)})
         return SimResult(t=self.t, xd=self.xd[i], params=self.params[i], gains=self.gains[i],
                          method=self.method, diverged=bool(self.diverged[i]),
                          t_diverged=float(self.t_diverged[i]) if self.diverged[i] else None,
-                         status=self.status[i], n_steps=int(self.n_steps[i]), **arrays)
+                         status=self.status[i], n_steps=int(self.n_steps[i]), _aux_fn=lambda: self._aux_of(i),
+                         **arrays)
 
     def __iter__(self):
         return (self[i] for i in range(len(self)))
