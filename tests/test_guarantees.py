@@ -146,3 +146,18 @@ def test_a_severity_window_outside_the_run_is_refused(t_start):
     run = simulate(MillParams(), PIDGains(1e5, 1e-3), 0.5)
     with pytest.raises(ValueError, match="t_start"):
         run.severity(t_start=t_start)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(None, None, "1"), "t_end"),
+    (lambda: __import__("millvib_env.severity", fromlist=["x"]).vibration_severity([0.0] * 5000, "a"), "fs"),
+    (lambda: __import__("millvib_env.severity", fromlist=["x"]).iso_zone("3"), "severity_mm_s"),
+    (lambda: __import__("millvib_env.control.policies", fromlist=["x"]).load_controller("ppo-gain-pf", seed="0"),
+     "seed"),
+    (lambda: __import__("millvib_env.training.benchmark", fromlist=["x"]).run_benchmark("pid-paper", episodes=2,
+                                                                                        progress=False),
+     "controllers"),
+])
+def test_api_arguments_of_the_wrong_type_are_a_valueerror_naming_them(call, name):
+    with pytest.raises(ValueError, match=name):
+        call()

@@ -60,7 +60,13 @@ def severity_band() -> tuple[float, float]:
 
 
 def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | None, quantity: str) -> np.ndarray:
-    x = np.asarray(signal, dtype=np.float64)
+    if isinstance(fs, bool) or not isinstance(fs, (int, float, np.integer, np.floating)) or not math.isfinite(fs) \
+            or fs <= 0:
+        raise ValueError(f"fs = {fs!r} is invalid: the sampling rate in Hz, a finite number > 0")
+    try:
+        x = np.asarray(signal, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"signal = {str(signal)[:40]!r} is invalid: a 1-D array of numbers") from None
     if x.ndim != 1:
         raise ValueError(f"signal must be 1-D, got shape {x.shape}")
     if quantity not in _POWER:
@@ -191,7 +197,8 @@ class IsoZoneTable:
     description: str = ""
 
     def zone(self, severity_mm_s: float) -> str:
-        if not math.isfinite(severity_mm_s) or severity_mm_s < 0:
+        if isinstance(severity_mm_s, bool) or not isinstance(severity_mm_s, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(severity_mm_s) or severity_mm_s < 0:
             raise ValueError(f"severity_mm_s = {severity_mm_s!r} is invalid: must be finite and >= 0")
         ab, bc, cd = self.boundaries_mm_s
         if severity_mm_s <= ab:

@@ -355,6 +355,8 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
     if not isinstance(name, str) or not name:
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
     if name not in BASELINES:
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+            raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
         seeds = agent_seed_folders(agent_folder(name))
         if seed is None:
             seed = next(iter(seeds))

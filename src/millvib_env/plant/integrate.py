@@ -189,7 +189,13 @@ class BatchResult:
 MAX_SAMPLES = 10_000_000
 
 
+def _real(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
+    if not _real(t_end) or not _real(dt_out):
+        raise ValueError(f"t_end = {t_end!r} s and dt_out = {dt_out!r} s must be numbers (s)")
     if not (math.isfinite(t_end) and t_end > 0):
         raise ValueError(f"t_end = {t_end!r} s is invalid: must be finite and > 0")
     if not (math.isfinite(dt_out) and 0 < dt_out <= t_end):
@@ -285,7 +291,8 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     method advances all N plants in one compiled, multi-threaded call. Other arguments as in
     `simulate`; `x0` may be an array of N values and `xd` an (N, n_t) array.
     """
-    t = _time_grid(float(t_end), float(dt_out))
+    t = _time_grid(t_end, dt_out)
+    t_end, dt_out = float(t_end), float(dt_out)
     n = None
     for obj in (params, gains):
         if not isinstance(obj, (MillParams, PIDGains)):

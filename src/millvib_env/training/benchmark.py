@@ -134,6 +134,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
+    if isinstance(controllers, str):
+        raise ValueError(f"controllers = {controllers!r} is invalid: a list of names (e.g. [{controllers!r}])")
     names = list(dict.fromkeys(controllers)) if controllers else baseline_names() + list_agents(t.name)
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:

@@ -54,6 +54,9 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     t = get_task(task)
     if isinstance(plants, bool) or not isinstance(plants, int) or plants < 1:
         raise ValueError(f"--plants {plants!r} is invalid: a whole number >= 1")
+    for arg, value in (("controllers", controllers), ("params", params)):
+        if isinstance(value, str):
+            raise ValueError(f"{arg} = {value!r} is invalid: a list of names (e.g. [{value!r}])")
     params = list(dict.fromkeys(params))
     randomize = _randomize(t.name, params)
     first = t.seeds["heldout"].start + SEED_OFFSET if seed is None else seed
