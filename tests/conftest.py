@@ -35,3 +35,16 @@ def random_draws():
     ct = np.exp(rng.uniform(np.log(5e-16), np.log(5e-9), n))
     kp = np.exp(rng.uniform(np.log(1e4), np.log(4e6), n))
     return ([MillParams(c1=a, Ct=b) for a, b in zip(c1, ct)], [PIDGains(k, 1e-3, 0.0) for k in kp])
+
+
+@pytest.fixture
+def shipped_agents_copy(tmp_path, monkeypatch):
+    """A copy of the shipped agents (and their manifest) that a test may damage: MILLVIB_AGENTS points at it."""
+    import shutil
+
+    from millvib_env._paths import agents_dir
+
+    root = tmp_path / "agents"
+    shutil.copytree(agents_dir(), root)
+    monkeypatch.setenv("MILLVIB_AGENTS", str(root))
+    return root

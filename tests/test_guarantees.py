@@ -124,15 +124,10 @@ def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants
         load_controller(str(folder))
 
 
-def test_a_seed_folder_that_lost_its_card_is_an_error_not_a_silent_fallback(tmp_path, monkeypatch):
-    import shutil
-
-    from millvib_env._paths import agents_dir
+def test_a_seed_folder_that_lost_its_card_is_an_error_not_a_silent_fallback(shipped_agents_copy):
     from millvib_env.control.policies import load_controller
 
-    root = tmp_path / "agents"
-    shutil.copytree(agents_dir(), root)
-    monkeypatch.setenv("MILLVIB_AGENTS", str(root))
+    root = shipped_agents_copy
     (root / "ppo-gain-pf" / "seed-0" / "card.json").unlink()
     with pytest.raises(ValueError, match="card.json"):
         load_controller("ppo-gain-pf")

@@ -176,15 +176,12 @@ def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
         load_controller(str(folder))
 
 
-def test_a_changed_shipped_agent_fails_its_checksum(tmp_path, monkeypatch):
+def test_a_changed_shipped_agent_fails_its_checksum(shipped_agents_copy):
     import shutil
 
-    from millvib_env._paths import agents_dir
     from millvib_env.control.policies import load_controller
 
-    root = tmp_path / "agents"
-    shutil.copytree(agents_dir(), root)
-    monkeypatch.setenv("MILLVIB_AGENTS", str(root))
+    root = shipped_agents_copy
     card = root / "ppo-gain-pf" / "seed-0" / "card.json"
     card.write_text(card.read_text().replace('"seed": 0', '"seed": 1'))
     with pytest.raises(ValueError, match="does not match its checksum"):

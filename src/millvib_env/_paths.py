@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import tempfile
 import time
@@ -94,7 +95,7 @@ def clean_debris(path: str | os.PathLike) -> None:
     if not path.parent.is_dir():
         return
     for kind in (".old", ".tmp"):
-        for debris in sorted(path.parent.glob(f".{glob_escape(path.name)}.*{kind}")):
+        for debris in sorted(path.parent.glob(f".{glob.escape(path.name)}.*{kind}")):
             pid = _owner_pid(debris)
             if not debris.is_dir() or (pid is not None and _alive(pid)):
                 continue
@@ -103,12 +104,6 @@ def clean_debris(path: str | os.PathLike) -> None:
             if kind == ".old" and (debris / "x").is_dir() and not path.exists():
                 os.replace(debris / "x", path)
             shutil.rmtree(debris, ignore_errors=True)
-
-
-def glob_escape(name: str) -> str:
-    import glob
-
-    return glob.escape(name)
 
 
 def _inside(a: Path, b: Path) -> bool:

@@ -251,15 +251,11 @@ def baseline_names() -> list[str]:
 
 
 def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
-    """An entry's gains, checked: finite numbers >= 0, 3 (PID), 4 (+ KPL) or 5 (+ KFF) of them."""
-    gains = entry.get("gains") if isinstance(entry, dict) else None
-    where = f"configs/control/{get_task(task).name}.yaml {name}.gains"
-    if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
-        raise ValueError(f"{where} = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])")
-    for k, g in enumerate(gains):
-        if isinstance(g, bool) or not isinstance(g, (int, float)) or not np.isfinite(g) or g < 0:
-            raise ValueError(f"{where}[{k}] = {g!r} is invalid: a finite number >= 0")
-    return [float(g) for g in gains]
+    """An entry's gains (`envs.config.checked_gains`)."""
+    from millvib_env.envs.config import checked_gains
+
+    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
+                         f"configs/control/{get_task(task).name}.yaml {name}.gains")
 
 
 def named_gains(task: str, name: str) -> list[float]:

@@ -292,13 +292,18 @@ def named_gains(name: str, task: str = "startup") -> list[float]:
     if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
             entry["from_task"] != task:
         return named_gains(name, entry["from_task"])
-    gains = entry.get("gains") if isinstance(entry, dict) else None
+    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
+                         f"run millvib tune --task {task} --only {name} --write-config")
+
+
+def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
+    """A fixed controller's gains, checked: 3-5 finite numbers >= 0 (KP, KI, KD[, KPL[, KFF]])."""
     if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
-        raise ValueError(f"{where}.gains = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]]) "
-                         f"(run millvib tune --task {task} --only {name} --write-config)")
+        raise ValueError(f"{where} = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])"
+                         + (f" ({hint})" if hint else ""))
     for k, g in enumerate(gains):
         if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
-            raise ValueError(f"{where}.gains[{k}] = {g!r} is invalid: a finite number >= 0")
+            raise ValueError(f"{where}[{k}] = {g!r} is invalid: a finite number >= 0")
     return [float(g) for g in gains]
 
 

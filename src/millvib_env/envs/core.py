@@ -275,7 +275,7 @@ class MillVibCore:
         ps = self.P[:, P_PS]
         terminated = failed | (np.abs(x).max(axis=1) > self.x_max) | (pL.min(axis=1) < self.p_min) \
             | (pL.max(axis=1) > self.p_max_factor * ps)
-        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" else None
+        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and self.reward.w_off else None
         reward, _, err_ms = self.reward.step(v, e, effort, terminated, offset)
         self.sq_err_sum += err_ms * self.n_samp
         self.k += 1
@@ -308,7 +308,7 @@ class MillVibCore:
         k0 = (self.k[i] - 1) * self.n_sub
         load = self.P[i, P_FL] + np.repeat(self.DFL[i, k0:k0 + self.n_sub], self.spp)
         if self.C[i, C_EA] != 0.0:
-            load = load + self.C[i, C_EA] * np.sin(self.C[i, C_EW] * t + self.C[i, C_EP])
+            load = load + self._eccentricity(i, t)
         return {"t": t, "x": self.YS[i, 1:, IX].copy(), "v": self.YS[i, 1:, IV].copy(),
                 "a": self.AUXS[i, 1:, A_ACC].copy(), "pL": self.YS[i, 1:, IPL].copy(),
                 "u": self.AUXS[i, 1:, A_U].copy(), "ps": self.AUXS[i, 1:, A_PS].copy(), "xd": xd.copy(),
@@ -331,8 +331,12 @@ class MillVibCore:
         """The load cells' rolling-force deviation FL(t) - FL (N) of environments `idx` now: the force
         step of the period just integrated plus the roll eccentricity at the current time."""
         col = np.clip(self.k[idx] * self.n_sub - 1, 0, self.DFL.shape[1] - 1)
-        dfl = self.DFL[idx, col]
-        return dfl + self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * self.T[idx] + self.C[idx, C_EP])
+        return self.DFL[idx, col] + self._eccentricity(idx, self.T[idx])
+
+    def _eccentricity(self, idx, t):
+        """The roll eccentricity's force (N) at times t, as `plant_rhs` applies it (`idx`: an environment
+        or an array of them)."""
+        return self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * t + self.C[idx, C_EP])
 
     def episode_metrics(self, i: int, terminated: bool) -> dict:
         """Episode-end metrics of environment i: severity over the whole episode (`vibration_severity`),

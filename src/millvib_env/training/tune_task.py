@@ -131,17 +131,10 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
                 out[name] = {"from_task": get_task(from_task).name}
                 todo.remove(name)
     if "pid-oracle" in todo:
-        from tqdm.auto import tqdm
-
-        c1_grid, ct_grid, cells = _oracle_grid(t, grid)
-        log_gains, costs = np.zeros((grid, grid, 3)), np.zeros((grid, grid))
-        for i, j in tqdm(cells, desc="tuning pid-oracle grid", unit="plant", disable=not progress):
-            res = tune(seeds["oracle"], task=t.name, params={"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])},
-                       refine_iters=40)
-            log_gains[i, j], costs[i, j] = res.log10_gains, res.cost
-        out["pid-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["oracle"],
-                                         "gains tuned per grid plant over 6 disturbance draws; log10 gains "
-                                         "interpolated bilinearly in (log c1, log Ct) between grid points")
+        out["pid-oracle"] = _tuned_table(t, grid, "pid-oracle", seeds["oracle"], progress, (
+            "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
+            "(log c1, log Ct) between grid points"),
+            lambda plant: tune(seeds["oracle"], task=t.name, params=plant, refine_iters=40))
     if "lqr-oracle" in todo:
         say("tuning lqr-oracle weights ...")
         res = tune_lqr(seeds["robust"], task=t.name)
@@ -174,21 +167,28 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
             "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
         say(f"  {out['pid-pf-ff']['gains']} cost {res.cost:.4f}")
     if "pid-pf-oracle" in todo:
-        from tqdm.auto import tqdm
-
         base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
-        c1_grid, ct_grid, cells = _oracle_grid(t, grid)
-        log_gains, costs = np.zeros((grid, grid, 4)), np.zeros((grid, grid))
-        for i, j in tqdm(cells, desc="tuning pid-pf-oracle grid", unit="plant", disable=not progress):
-            res = tune_from(base[None, :], seeds["pf-oracle"], task=t.name, refine_iters=60, step_decades=0.2,
-                            params={"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
-            log_gains[i, j], costs[i, j] = res.log10_gains, res.cost
-        out["pid-pf-oracle"] = _table_entry(c1_grid, ct_grid, log_gains, costs, seeds["pf-oracle"], (
+        out["pid-pf-oracle"] = _tuned_table(t, grid, "pid-pf-oracle", seeds["pf-oracle"], progress, (
             "PID + pressure-feedback gains tuned per grid plant over 32 disturbance draws (Nelder-Mead from "
             "pid-pf-robust, 60 iterations, never worse than pid-pf-robust on them); log10 gains interpolated "
             "bilinearly in (log c1, log Ct). With 6 draws per plant (as pid-oracle) the table overfitted: 1.083 "
-            "on the rolling validation plants against 0.993 for pid-pf-robust"))
+            "on the rolling validation plants against 0.993 for pid-pf-robust"),
+            lambda plant: tune_from(base[None, :], seeds["pf-oracle"], task=t.name, refine_iters=60,
+                                    step_decades=0.2, params=plant))
     return out
+
+
+def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool, how: str, tune_plant) -> dict:
+    """A per-plant gain table on the oracle grid: `tune_plant({"c1", "Ct"})` (a TuneResult) for each grid plant."""
+    from tqdm.auto import tqdm
+
+    c1_grid, ct_grid, cells = _oracle_grid(t, grid)
+    results = {}
+    for i, j in tqdm(cells, desc=f"tuning {name} grid", unit="plant", disable=not progress):
+        results[i, j] = tune_plant({"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
+    log_gains = np.array([[results[i, j].log10_gains for j in range(grid)] for i in range(grid)])
+    costs = np.array([[results[i, j].cost for j in range(grid)] for i in range(grid)])
+    return _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how)
 
 
 def _area(t: Task) -> float:

@@ -89,6 +89,16 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: di
     names = ("kp", "ki", "kd", "kpl", "kff")[:starts.shape[1]]
     lo = np.log10([PF_BOUNDS[k][0] for k in names])
     hi = np.log10([PF_BOUNDS[k][1] for k in names])
+    return _refine(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step_decades,
+                   xatol=0.01, fatol=1e-4, bounded=True)
+
+
+def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: str,
+            params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
+            bounded: bool) -> "TuneResult":
+    """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
+    by Nelder-Mead; never worse than that start. `bounded`: Nelder-Mead within [lo, hi], its first
+    simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains."""
     starts = np.clip(starts, lo, hi)
     start_costs = mean_costs(starts, seeds, task=task, params=params)
     best = starts[int(np.argmin(start_costs))]
@@ -100,10 +110,13 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: di
         return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params)[0])
 
     dim = len(best)
-    simplex = best + np.vstack([np.zeros(dim), step_decades * np.eye(dim)])
-    simplex = np.where(simplex > hi, 2 * best - simplex, simplex)  # step inwards from a bound (KD at 300)
-    res = optimize.minimize(objective, best, method="Nelder-Mead", bounds=list(zip(lo, hi)),
-                            options={"maxiter": refine_iters, "xatol": 0.01, "fatol": 1e-4,
+    simplex = best + np.vstack([np.zeros(dim), step * np.eye(dim)])
+    extra = {}
+    if bounded:
+        simplex = np.where(simplex > hi, 2 * best - simplex, simplex)
+        extra["bounds"] = list(zip(lo, hi))
+    res = optimize.minimize(objective, best, method="Nelder-Mead", **extra,
+                            options={"maxiter": refine_iters, "xatol": xatol, "fatol": fatol,
                                      "initial_simplex": simplex})
     final, final_cost = np.clip(res.x, lo, hi), float(res.fun)
     if final_cost > start_costs.min():
@@ -130,24 +143,8 @@ def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = N
     gain_map = GainMap.from_config(load_env_config(get_task(task).config))
     lo, hi = gain_map.log_lo, gain_map.log_hi
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
-    mesh = np.clip(mesh, lo, hi)
-    grid_costs = mean_costs(mesh, seeds, task=task, params=params)
-    best = mesh[int(np.argmin(grid_costs))]
-    n_eval = len(mesh)
-
-    def objective(u: np.ndarray) -> float:
-        nonlocal n_eval
-        n_eval += 1
-        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params)[0])
-
-    res = optimize.minimize(objective, best, method="Nelder-Mead",
-                            options={"maxiter": refine_iters, "xatol": 0.02, "fatol": 1e-3,
-                                     "initial_simplex": best + np.vstack([np.zeros(3), 0.15 * np.eye(3)])})
-    final = np.clip(res.x, lo, hi)
-    final_cost = float(res.fun)
-    if final_cost > grid_costs.min():
-        final, final_cost = best, float(grid_costs.min())
-    return TuneResult(final, final_cost, best, float(grid_costs.min()), n_eval)
+    return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
+                   xatol=0.02, fatol=1e-3, bounded=False)
 
 
 def plants_of(seeds: Sequence[int], task: str) -> list:
