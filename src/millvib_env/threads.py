@@ -23,7 +23,8 @@ from __future__ import annotations
 import os
 
 __all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "serial_unless_set",
-           "THREADS_ENV", "passive_waiting", "one_blas_thread"]
+           "THREADS_ENV", "passive_waiting", "one_blas_thread",
+           "one_xla_thread", "XLA_ONE_THREAD"]
 
 THREADS_ENV = "MILLVIB_NUM_THREADS"
 #: batches smaller than this run serially
@@ -37,6 +38,18 @@ def passive_waiting() -> None:
     policy: called when the package is imported, before numba's thread pool (GNU OpenMP here) starts.
     Measured by `python scripts/thread_bench.py` (docs/performance.md)."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+#: XLA's CPU flags for one thread per learner (sbx): measured with SAC on the gain-schedule env
+#: (docs/performance.md), 1,264 against 1,164 steps/s idle and 801 against 759 beside a 2-core hog
+XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+
+def one_xla_thread() -> None:
+    """Run JAX's CPU computations on one thread (``XLA_FLAGS``), unless the user set XLA flags: a
+    learner's networks are small, and two trainings share a 2-core machine. Takes effect only before
+    JAX's first computation, so `millvib train --backend sbx` calls it before importing sbx."""
+    os.environ.setdefault("XLA_FLAGS", XLA_ONE_THREAD)
 
 
 class one_blas_thread:

@@ -35,7 +35,8 @@ from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
 __all__ = ["Controller", "FixedGainPolicy", "OraclePolicy", "LQRPolicy", "AgentPolicy", "GainTable",
-           "load_controller", "baseline_names", "ControllerLoop", "named_gains", "REFERENCE", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES"]
+           "load_controller", "baseline_names", "ControllerLoop", "named_gains", "REFERENCE", "list_agents", "agent_seeds", "agent_seed_folders", "agent_folder", "load_control_config", "BASELINES",
+           "BACKENDS", "algo_class"]
 
 #: every baseline by name, with what it is
 BASELINES = {
@@ -130,20 +131,32 @@ class LQRPolicy(PerEnvGains):
 
 #: the algorithms an agent may be trained with (`millvib train --algo`)
 ALGOS = ("ppo", "sac", "recurrentppo")
+#: the learner libraries (`millvib train --backend`): Stable-Baselines3 (PyTorch, the default) and sbx,
+#: its JAX port (`pip install -e '.[sbx]'`), for PPO and SAC; a model card records its backend
+BACKENDS = {"sb3": ALGOS, "sbx": ("ppo", "sac")}
 
 
-def algo_class(algo: str):
-    """The Stable-Baselines3 (or sb3-contrib) class of an algorithm name; imported only when asked for."""
+def algo_class(algo: str, backend: str = "sb3"):
+    """The learner class of an algorithm name for a backend (SB3, sb3-contrib or sbx); imported only
+    when asked for."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend = {backend!r} is invalid: one of {sorted(BACKENDS)}")
+    if algo not in BACKENDS[backend]:
+        raise ValueError(f"algo = {algo!r} is invalid for backend {backend!r}: one of {BACKENDS[backend]}")
+    if backend == "sbx":
+        try:
+            import sbx
+        except ImportError:
+            raise ValueError("backend 'sbx' needs sbx-rl and JAX: pip install -e '.[sbx]'") from None
+        return {"ppo": sbx.PPO, "sac": sbx.SAC}[algo]
     if algo == "ppo":
         from stable_baselines3 import PPO
         return PPO
     if algo == "sac":
         from stable_baselines3 import SAC
         return SAC
-    if algo == "recurrentppo":
-        from sb3_contrib import RecurrentPPO
-        return RecurrentPPO
-    raise ValueError(f"algo = {algo!r} is invalid: one of {ALGOS}")
+    from sb3_contrib import RecurrentPPO
+    return RecurrentPPO
 
 
 #: what an agent's card may set in its environment: its action, observation and reward, never the
@@ -184,7 +197,10 @@ class AgentPolicy(Controller):
         algo = str(self.card["algo"]).lower()
         if algo not in ALGOS:
             raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
-        cls = algo_class(algo)
+        self.backend = str(self.card.get("backend", "sb3"))
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown backend {self.backend!r} in {card_path}: one of {sorted(BACKENDS)}")
+        cls = algo_class(algo, self.backend)
         self.recurrent = algo == "recurrentppo"
         model_path = folder / "model.zip"
         if not model_path.is_file():

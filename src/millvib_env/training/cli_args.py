@@ -38,6 +38,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--select", choices=["last", "best"], default="last",
                    help="ship the final policy (default) or the best one on the fixed evaluation plants, the "
                         "starting policy included (--n-eval-episodes plants, the same every evaluation)")
+    p.add_argument("--backend", choices=["sb3", "sbx"], default="sb3",
+                   help="learner library: sb3 (Stable-Baselines3, PyTorch; default) or sbx (its JAX port, PPO and "
+                        "SAC, same hyperparameter files; needs pip install -e '.[sbx]')")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=func)
 

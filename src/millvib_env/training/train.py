@@ -38,10 +38,14 @@ AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURV
 N_VALIDATION = 40
 
 
-def _algo_class(algo: str):
+def _algo_class(algo: str, backend: str = "sb3"):
     from millvib_env.control.policies import algo_class
 
-    return algo_class(algo)
+    if backend == "sbx":
+        from millvib_env.threads import one_xla_thread
+
+        one_xla_thread()  # before JAX starts: its thread pool would take every core
+    return algo_class(algo, backend)
 
 
 def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
@@ -118,7 +122,25 @@ def start_at_zero_action(model) -> None:
     """Make a new policy's deterministic action start at (nearly) zero, so an agent whose zero action
     is its base controller starts from it. PPO's action layer is already initialised so (orthogonal,
     gain 0.01); SAC's mean layer is not (a default linear layer: offsets of +-0.5 at the start, 4 %
-    dearer than the base on the rolling validation plants), so it is scaled to PPO's gain."""
+    dearer than the base on the rolling validation plants), so it is scaled to PPO's gain. sbx's
+    actors (flax) get the same: their mean layer is the Dense after the hidden ones."""
+    actor_state = getattr(getattr(model, "policy", None), "actor_state", None)
+    if actor_state is not None:  # sbx
+        if not hasattr(model, "ent_coef_state"):
+            return  # sbx PPO: its action layer starts at gain 0.01 already
+        import jax.numpy as jnp
+
+        params = actor_state.params
+        dense = sorted((k for k in params["params"] if k.startswith("Dense_")), key=lambda k: int(k.split("_")[1]))
+        layer = dense[-2]  # [hidden..., mean, log_std]
+        mean = dict(params["params"][layer])
+        n_in, n_out = mean["kernel"].shape
+        q, _ = np.linalg.qr(np.random.default_rng(model.seed).standard_normal((max(n_in, n_out), min(n_in, n_out))))
+        mean["kernel"] = jnp.asarray(0.01 * (q if n_in >= n_out else q.T), dtype=mean["kernel"].dtype)
+        mean["bias"] = jnp.zeros_like(mean["bias"])
+        new = {**params, "params": {**params["params"], layer: mean}}
+        model.policy.actor_state = actor_state.replace(params=new)
+        return
     import torch
 
     actor = getattr(model, "actor", None)
@@ -191,13 +213,15 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
-          progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last") -> dict:
+          progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last",
+          backend: str = "sb3") -> dict:
     """Train one agent; returns its model card (also written to the run folder).
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
     time), so the evaluation curve compares policies, not draws. `select`: ship the final policy
     ("last") or the best evaluated one ("best", the starting policy included, with the observation
-    statistics of its moment)."""
+    statistics of its moment). `backend`: the learner library, "sb3" (default) or "sbx" (JAX; PPO and
+    SAC), with the same hyperparameter files; the card records it and `load_controller` loads with it."""
     if select not in ("last", "best"):
         raise ValueError(f"--select {select!r} is invalid: 'last' or 'best'")
     import torch
@@ -208,7 +232,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     from millvib_env.tasks import get_task
 
     algo = algo.lower()
-    cls = _algo_class(algo)
+    cls = _algo_class(algo, backend)
     the_task = get_task(task)
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
@@ -277,7 +301,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
-            "task": the_task.name, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
+            "task": the_task.name, "backend": backend, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
             "wall_time_s": round(wall, 1), "command": command or f"millvib train --algo {algo} --env {env_id} "
                                                                   f"--task {the_task.name} --seed {seed}",
             "hyperparameters": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else repr(v))
@@ -369,7 +393,8 @@ def train_from_cli(args) -> int:
     common = dict(algo=args.algo, env_id=args.env, task=args.task, n_timesteps=args.n_timesteps, config=args.config,
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                  command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select)
+                  command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select,
+                  backend=args.backend)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
