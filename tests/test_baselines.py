@@ -5,7 +5,7 @@ import pytest
 from millvib_env import MillParams
 from millvib_env.analysis.linear import linearize
 from millvib_env.control.lqr import LQRWeights, lqr_design
-from millvib_env.control.policies import _entry, load_controller
+from millvib_env.control.factory import control_entry, load_controller
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
 from millvib_env.params import PIDGains
@@ -34,8 +34,8 @@ def test_linearisation_converts_to_python_control():
 
 @pytest.mark.parametrize("task", list_tasks())
 def test_lqr_closed_loop_is_stable_on_every_plant_of_the_oracle_grid(task):
-    weights = LQRWeights(**_entry(task, "lqr-oracle")["weights"])
-    grid = _entry(task, "pid-oracle")
+    weights = LQRWeights(**control_entry(task, "lqr-oracle")["weights"])
+    grid = control_entry(task, "pid-oracle")
     lqr = load_controller("lqr-oracle", task)
     for c1 in grid["c1_grid"]:
         for ct in grid["ct_grid"]:
@@ -91,7 +91,7 @@ def test_adaptive_gives_the_fallback_until_it_has_seen_motion():
 def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
     import gymnasium as gym
 
-    from millvib_env.control.policies import load_controller
+    from millvib_env.control.factory import load_controller
     from millvib_env.envs.config import load_env_config
 
     cfg = load_env_config("rolling", sample_rate_hz=20000)

@@ -8,7 +8,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: import name -> distribution name, where they differ
 DIST = {"yaml": "pyyaml", "sb3_contrib": "sb3-contrib", "stable_baselines3": "stable-baselines3",
-        "control": "control", "rl_zoo3": "rl-zoo3"}
+        "control": "control", "rl_zoo3": "rl-zoo3", "sbx": "sbx-rl"}
 
 
 def _norm(name: str) -> str:

@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 
 import millvib_env
-from millvib_env.control.policies import REFERENCE, load_controller, named_gains
+from millvib_env.control.factory import load_controller
+from millvib_env.control.policies import REFERENCE
+from millvib_env.envs.config import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.training.evaluate import run_episodes
@@ -49,12 +51,12 @@ def test_a_named_base_is_resolved_from_the_tasks_control_config_by_the_env_and_b
     from millvib_env.training.train import resolve_named_gains
 
     cfg = load_env_config("rolling", actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
-    assert list(GainMap.from_config(cfg).base) == named_gains("rolling", "pid-pf-robust")
+    assert list(GainMap.from_config(cfg).base) == named_gains("pid-pf-robust", "rolling")
     valve = load_env_config("change", actions={"residual_gains": "pid-pf-ff"})  # as the zoo passes a file's env_kwargs
-    assert valve["actions"]["residual_gains"] == named_gains("change", "pid-pf-ff")
+    assert valve["actions"]["residual_gains"] == named_gains("pid-pf-ff", "change")
     kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
                                           "residual_gains": "pid-pf-ff"}}, "rolling")
-    assert kw["actions"]["relative"]["base"] == named_gains("rolling", "pid-pf-robust")  # the card records numbers
+    assert kw["actions"]["relative"]["base"] == named_gains("pid-pf-robust", "rolling")  # the card records numbers
     assert len(kw["actions"]["residual_gains"]) == 5
     with pytest.raises(ValueError, match="gains 'bogus' unknown"):
         resolve_named_gains({"actions": {"residual_gains": "bogus"}}, "rolling")
@@ -79,21 +81,21 @@ def test_force_feedforward_is_off_by_default_and_the_force_observation_is_an_opt
 
 @pytest.mark.parametrize("task", ["rolling", "change"])
 def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plants(task):
-    from millvib_env.control.policies import _entry
+    from millvib_env.control.factory import control_entry
 
     assert REFERENCE == "pid-pf-robust"
-    assert _entry(task, "pid-pf-robust")["tuning_cost"] < _entry(task, "pid-robust")["tuning_cost"]
-    assert len(named_gains(task, "pid-pf-robust")) == 4 and len(named_gains(task, "pid-pf-ff")) == 5
+    assert control_entry(task, "pid-pf-robust")["tuning_cost"] < control_entry(task, "pid-robust")["tuning_cost"]
+    assert len(named_gains("pid-pf-robust", task)) == 4 and len(named_gains("pid-pf-ff", task)) == 5
 
 
 def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant():
     from millvib_env.analysis.linear import spectral_abscissa
-    from millvib_env.control.policies import _entry
+    from millvib_env.control.factory import control_entry
     from millvib_env.params import PIDGains
 
     for task in ("startup", "rolling", "change"):
-        gains = PIDGains(*named_gains(task, "pid-pf-robust"))
-        entry = _entry(task, "pid-oracle")
+        gains = PIDGains(*named_gains("pid-pf-robust", task))
+        entry = control_entry(task, "pid-oracle")
         base = load_env_config(task).base_params
         for c1 in entry["c1_grid"]:
             for ct in entry["ct_grid"]:
@@ -121,7 +123,7 @@ def _plain_loop_cost(ctrl, seed: int) -> float:
 
 @pytest.mark.parametrize("task", ["startup", "rolling"])
 def test_every_controller_gives_the_benchmark_cost_in_a_plain_gymnasium_loop(task):
-    from millvib_env.control.policies import list_agents
+    from millvib_env.control.agents import list_agents
     from millvib_env.tasks import get_task
 
     seed = get_task(task).seeds["heldout"].start + 7

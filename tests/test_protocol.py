@@ -7,7 +7,7 @@ import pytest
 
 from millvib_env._paths import agents_dir
 from millvib_env.cli import main as cli_main
-from millvib_env.control.policies import agent_seeds, list_agents
+from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.training.benchmark import public_json, run_benchmark
 from millvib_env.training.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
 

@@ -25,7 +25,7 @@ def test_a_sweep_on_ray_equals_the_local_run(local_cluster):
 
 
 def test_a_benchmark_on_ray_equals_the_local_run(local_cluster):
-    from millvib_env.control.policies import agent_seeds, list_agents
+    from millvib_env.control.agents import agent_seeds, list_agents
 
     agents = [n for n in list_agents("rolling") if len(agent_seeds(n)) >= 2][:1]
     kw = dict(task="rolling", episodes=3, progress=False, all_seeds=True)

@@ -181,7 +181,7 @@ def test_a_typo_or_a_wrong_value_in_any_nested_key_names_the_key(overrides, matc
 def test_a_broken_config_file_names_the_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("episode_s: [1\n")
-    with pytest.raises(ValueError, match="bad.yaml cannot be read"):
+    with pytest.raises(ValueError, match="bad.yaml is not valid YAML"):
         load_env_config(str(bad))
     with pytest.raises(ValueError, match="not found"):
         load_env_config("no-such-task")

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from millvib_env.cli import main as cli_main
-from millvib_env.control.policies import FixedGainPolicy, OraclePolicy, agent_seeds, list_agents, load_controller
-from millvib_env.envs.actions import GainMap
+from millvib_env.control.agents import agent_seeds, list_agents
+from millvib_env.control.factory import load_controller
+from millvib_env.control.policies import FixedGainPolicy, OraclePolicy
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.params import PIDGains

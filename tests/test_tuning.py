@@ -25,8 +25,11 @@ def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
 def test_a_bad_storage_is_refused():
     from millvib_env.training.tuning import optuna_storage
 
-    with pytest.raises(ValueError, match="--storage"):
+    with pytest.raises(ValueError, match="--optuna 'somewhere' is invalid"):
         optuna_storage("somewhere")
+    for url in ("bogus://", "sqlite:////proc/x.db"):  # an unknown dialect, a file that cannot be opened
+        with pytest.raises(ValueError, match="cannot be opened"):
+            optuna_storage(url)
 
 
 def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_a_better_entry(tmp_path, capsys):

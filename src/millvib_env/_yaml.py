@@ -24,6 +24,33 @@ _Loader.add_implicit_resolver(
 )
 
 
-def load_yaml(path: str | Path) -> Any:
-    with open(path, encoding="utf-8") as fh:
-        return yaml.load(fh, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+#: the largest config file read (a YAML config is a few kB; /dev/zero or a huge file is refused, not read)
+MAX_BYTES = 16 * 2**20
+
+
+def load_yaml(path: str | Path, what: str = "config file", mapping: bool = False) -> Any:
+    """The data of a YAML file, read with a safe loader (no tags that build Python objects); a file
+    that is missing, not a regular file, too large, not UTF-8 or not valid YAML is a ValueError of
+    one line naming it (and `what` it is); `mapping` also refuses anything but a mapping."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise ValueError("no such file" if not path.exists() else "not a regular file")
+        if path.stat().st_size > MAX_BYTES:
+            raise ValueError(f"larger than {MAX_BYTES // 2**20} MiB")
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.load(fh, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+    except ValueError as err:  # includes UnicodeDecodeError
+        raise ValueError(f"{what} {path} cannot be read: {str(err).splitlines()[0]}") from None
+    except OSError as err:
+        raise ValueError(f"{what} {path} cannot be read: {err.strerror or type(err).__name__}") from None
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" (line {mark.line + 1})" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"{what} {path} is not valid YAML{where}: {problem}") from None
+    except RecursionError:
+        raise ValueError(f"{what} {path} is nested too deeply") from None
+    if mapping and not isinstance(data, dict):
+        raise ValueError(f"{what} {path} must be a mapping (key: value lines), not {type(data).__name__}")
+    return data

@@ -44,8 +44,19 @@ def _median_wall(fn: Callable[[], float], repeats: int) -> float:
     return statistics.median(fn() for _ in range(repeats))
 
 
+#: the limits of a plant benchmark's settings: the tight reference (rtol 1e-10) takes about a minute per
+#: simulated second of the nine cases, so a longer or more repeated run is refused, not started
+T_END_RANGE = (0.05, 5.0)
+MAX_REPEATS = 50
+
+
 def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, batch_t_end: float = 1.0,
                 progress: bool = True) -> dict:
+    lo, hi = T_END_RANGE
+    if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or not lo <= t_end <= hi:
+        raise ValueError(f"t_end = {t_end!r} s is invalid: a simulated time per case in [{lo}, {hi}] s")
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= MAX_REPEATS:
+        raise ValueError(f"repeats = {repeats!r} is invalid: a whole number in [1, {MAX_REPEATS}]")
     simulate(t_end=0.01)  # compile or load the kernels outside the timings
     simulate(t_end=0.01, method="reference")
     cases = [(c.label, c.params, c.gains) for s in PAPER_STUDIES for c in s.cases]

@@ -150,7 +150,10 @@ class MillParams:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "MillParams":
-        data = load_yaml(path) or {}
+        data = load_yaml(path, "plant preset") or {}
+        if not isinstance(data, dict) or not isinstance(data.get("params", {}), dict):
+            raise ValueError(f"plant preset {path} must map parameter names to numbers (optionally under "
+                             "'params:'); `millvib params` lists them")
         return cls.from_dict(data.get("params", data))
 
     @classmethod

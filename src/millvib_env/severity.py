@@ -222,11 +222,7 @@ def _finite(v) -> bool:
 def _load_severity_config() -> dict:
     """configs/severity.yaml, every value checked (a wrong zone boundary would grade silently wrong)."""
     path = config_dir() / "severity.yaml"
-    try:
-        data = load_yaml(path)
-    except Exception as err:  # unreadable, a YAML syntax error, or a !!python tag the safe loader refuses
-        raise ValueError(f"{path} cannot be read: {str(err).splitlines()[0] if str(err) else type(err).__name__}") \
-            from None
+    data = load_yaml(path, "severity config")  # unreadable, broken, or a !!python tag: one line
     if not isinstance(data, dict):
         raise ValueError(f"{path} must be a mapping with keys source, band_hz, default_class, zones")
     source = data.get("source", "")

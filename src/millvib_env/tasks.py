@@ -78,10 +78,7 @@ class Task:
 @lru_cache(maxsize=None)
 def _load() -> dict[str, Task]:
     path = config_dir() / "tasks.yaml"
-    try:
-        data = load_yaml(path)
-    except Exception as err:
-        raise ValueError(f"task file {path} cannot be read: {str(err).splitlines()[0]}") from None
+    data = load_yaml(path, "task file")
     if not isinstance(data, dict) or not data:
         raise ValueError(f"task file {path} must map task names to {{config, description, seeds}}")
     tasks: dict[str, Task] = {}

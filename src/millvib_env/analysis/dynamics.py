@@ -59,6 +59,9 @@ def classify_motion(result: SimResult, *, tail: float = 0.4, tol: float = 0.02, 
     x = result.x[int(n * (1 - tail)):]
     fs = 1.0 / result.dt
     half = x.size // 2
+    if half < 8:
+        raise ValueError(f"t_end = {result.t[-1]:.3g} s is too short to classify the motion: its last {tail:.0%} "
+                         f"must hold at least 16 samples (t_end >= {16 / (tail * fs):.3g} s at {fs:.0f} Hz)")
     # the severity band, its low edge raised where the tail's halves are shorter than 0.1 s
     band = (max(10.0, fs / half), 1000.0)
     vib = vibration_severity(x, fs, quantity="displacement", band=band)

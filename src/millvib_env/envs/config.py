@@ -44,10 +44,7 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
                          "or a path to a .yaml file")
     if path.resolve() in _seen:
         raise ValueError(f"environment config {path}: 'inherit' forms a cycle")
-    try:
-        data = load_yaml(path)
-    except Exception as err:  # a YAML syntax error or an unreadable file
-        raise ValueError(f"environment config {path} cannot be read: {str(err).splitlines()[0]}") from None
+    data = load_yaml(path, "environment config")
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -283,11 +280,7 @@ def named_gains(name: str, task: str = "startup") -> list[float]:
         return [float(g) for g in PAPER_GAINS.to_array()]
     path = config_dir() / "control" / f"{task}.yaml"
     where = f"configs/control/{task}.yaml {name}"
-    try:
-        table = load_yaml(path)
-    except Exception as err:
-        raise ValueError(f"{where}: cannot be read ({str(err).splitlines()[0] if str(err) else type(err).__name__})") \
-            from None
+    table = load_yaml(path, "control config")
     entry = table.get(name) if isinstance(table, dict) else None
     if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
             entry["from_task"] != task:

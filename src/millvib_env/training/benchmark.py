@@ -26,7 +26,10 @@ from typing import Sequence
 import numpy as np
 
 from millvib_env._paths import save_figure, write_text_atomic
-from millvib_env.control.policies import Controller, baseline_names, list_agents, load_controller
+from millvib_env.control.agents import list_agents
+from millvib_env.control.base import Controller
+from millvib_env.control.factory import load_controller
+from millvib_env.control.policies import baseline_names
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
@@ -128,7 +131,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     local run's. Every controller is compared on the same plants with `reference` (default
     `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
     `controllers` leaves it out) and with pid-robust."""
-    from millvib_env.control.policies import REFERENCE, agent_seeds
+    from millvib_env.control.agents import agent_seeds
+    from millvib_env.control.policies import REFERENCE
 
     t = get_task(task)
     if episodes is None:

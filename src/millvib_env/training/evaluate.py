@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from millvib_env.control.policies import Controller
+from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 
 __all__ = ["run_episodes", "episode_cost", "COST_SCALES"]

@@ -65,10 +65,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     path = Path(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     if not path.is_file():
         raise ValueError(f"hyperparameter file {path} not found")
-    try:
-        table = load_yaml(path) or {}
-    except Exception as err:
-        raise ValueError(f"hyperparameter file {path} cannot be read: {str(err).splitlines()[0]}") from None
+    table = load_yaml(path, "hyperparameter file") or {}
     if not isinstance(table, dict) or env_id not in table or not isinstance(table[env_id], dict):
         have = sorted(table) if isinstance(table, dict) else []
         raise ValueError(f"{path} has no entry for {env_id!r}; it has {have}")

@@ -47,7 +47,7 @@ def _randomize(task: str, params: Sequence[str]) -> dict:
 def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup", params: Sequence[str] = ("c1", "Ct"),
               seed: int | None = None, ray: str | None = None, processes: int = 1, progress: bool = True) -> dict:
     """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}."""
-    from millvib_env.control.policies import load_controller
+    from millvib_env.control.factory import load_controller
     from millvib_env.distributed import run_jobs
     from millvib_env.training.benchmark import episode_records, summarize
 

@@ -31,7 +31,7 @@ from millvib_env.control.manifest import EVAL_CURVE
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
-from millvib_env.control.policies import ALGOS  # noqa: E402 (one list of algorithms)
+from millvib_env.control.agents import ALGOS  # noqa: E402 (one list of algorithms)
 #: the files of an agent folder (`--save-dir`), which a new training of it replaces
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
@@ -39,7 +39,7 @@ N_VALIDATION = 40
 
 
 def _algo_class(algo: str, backend: str = "sb3"):
-    from millvib_env.control.policies import algo_class
+    from millvib_env.control.agents import algo_class
 
     if backend == "sbx":
         from millvib_env.threads import one_xla_thread
@@ -320,7 +320,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
         from millvib_env._paths import atomic_folder
 
         dest = Path(save_dir)
-        from millvib_env.control.policies import SEED_FOLDER
+        from millvib_env.control.agents import SEED_FOLDER
 
         card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
         with atomic_folder(dest) as tmp:
@@ -335,7 +335,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
 
 def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     """Mean severity, tracking and cost of the agent in `folder` on the validation plants."""
-    from millvib_env.control.policies import AgentPolicy
+    from millvib_env.control.agents import AgentPolicy
     from millvib_env.training.benchmark import summarize
     from millvib_env.training.evaluate import run_episodes
 

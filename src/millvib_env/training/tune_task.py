@@ -67,9 +67,9 @@ def _pf_starts(task: Task, seeds: list[int]) -> np.ndarray:
     centre = {d.name: math.sqrt(d.low * d.high) for d in cfg.randomize if d.name in ("c1", "Ct")}
     starts = [grid]
     try:
-        from millvib_env.control.policies import _entry
+        from millvib_env.control.factory import control_entry
 
-        weights = LQRWeights(**_entry(task.name, "lqr-oracle")["weights"])
+        weights = LQRWeights(**control_entry(task.name, "lqr-oracle")["weights"])
     except (ValueError, KeyError, TypeError):
         weights = LQRWeights()
     try:
@@ -216,7 +216,8 @@ def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
 
 
 def _table(entry: dict):
-    from millvib_env.control.policies import GainTable, oracle_table
+    from millvib_env.control.base import GainTable
+    from millvib_env.control.factory import oracle_table
 
     if "from_task" in entry:
         return oracle_table(entry["from_task"])
@@ -269,7 +270,7 @@ def tune_from_cli(args) -> int:
     shipped_path = config_dir() / "control" / f"{t.name}.yaml"
     target = shipped_path if args.write_config else Path(args.out)
     check_output(str(target), "--out")
-    shipped = load_yaml(shipped_path) if shipped_path.is_file() else {}
+    shipped = load_yaml(shipped_path, "control config") if shipped_path.is_file() else {}
     if not isinstance(shipped, dict):
         raise ValueError(f"{shipped_path} must be a mapping of entries")
     start = time.time()

@@ -15,7 +15,7 @@ from typing import Sequence
 import numpy as np
 from scipy import optimize
 
-from millvib_env.control.policies import Controller
+from millvib_env.control.base import Controller
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
@@ -236,7 +236,7 @@ def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = AD
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
-    from millvib_env.control.policies import oracle_table
+    from millvib_env.control.factory import oracle_table
 
     cfg = load_env_config(get_task(task).config)
     table, gain_map = (oracle_table(task) if table is None else table), GainMap.from_config(cfg)
@@ -257,13 +257,17 @@ def optuna_storage(storage: str):
     on a common file system) or a database URL (``sqlite:///tune.db``, ``postgresql://...``)."""
     import optuna
 
-    if storage.startswith("journal:"):
-        from optuna.storages.journal import JournalFileBackend, JournalStorage
+    if not isinstance(storage, str) or not (storage.startswith("journal:") or "://" in storage):
+        raise ValueError(f"--optuna {storage!r} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
+    try:
+        if storage.startswith("journal:"):
+            from optuna.storages.journal import JournalFileBackend, JournalStorage
 
-        return JournalStorage(JournalFileBackend(storage[len("journal:"):]))
-    if "://" not in storage:
-        raise ValueError(f"--storage {storage!r} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
-    return optuna.storages.RDBStorage(storage)
+            return JournalStorage(JournalFileBackend(storage[len("journal:"):]))
+        return optuna.storages.RDBStorage(storage)
+    except Exception as err:  # an unknown dialect, a driver not installed, a file that cannot be opened
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"--optuna {storage!r} cannot be opened: {first[:200]}") from None
 
 
 def tune_optuna(seeds: Sequence[int], *, task: str, storage: str, study_name: str, n_trials: int,

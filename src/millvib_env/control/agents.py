@@ -1,0 +1,204 @@
+"""Trained agents and their folders: what an agent folder holds (card.json, model.zip,
+vecnormalize.npz, evaluations.npz; `control.manifest` checks the shipped ones, `control.normalization`
+reads the statistics), how a name finds one (a shipped agent under agents/ always wins; a local folder
+needs a path) and `AgentPolicy`, which runs one with SB3's `predict`.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from millvib_env._paths import agents_dir
+from millvib_env.control.base import Controller
+from millvib_env.control.policies import baseline_names
+from millvib_env.tasks import get_task
+
+__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
+           "list_agents", "agent_folder", "agent_seeds"]
+
+
+#: the algorithms an agent may be trained with (`millvib train --algo`)
+ALGOS = ("ppo", "sac", "recurrentppo")
+#: the learner libraries (`millvib train --backend`): Stable-Baselines3 (PyTorch, the default) and sbx,
+#: its JAX port (`pip install -e '.[sbx]'`), for PPO and SAC; a model card records its backend
+BACKENDS = {"sb3": ALGOS, "sbx": ("ppo", "sac")}
+
+
+def algo_class(algo: str, backend: str = "sb3"):
+    """The learner class of an algorithm name for a backend (SB3, sb3-contrib or sbx); imported only
+    when asked for."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend = {backend!r} is invalid: one of {sorted(BACKENDS)}")
+    if algo not in BACKENDS[backend]:
+        raise ValueError(f"algo = {algo!r} is invalid for backend {backend!r}: one of {BACKENDS[backend]}")
+    if backend == "sbx":
+        try:
+            import sbx
+        except ImportError:
+            raise ValueError("backend 'sbx' needs sbx-rl and JAX: pip install -e '.[sbx]'") from None
+        return {"ppo": sbx.PPO, "sac": sbx.SAC}[algo]
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+        return PPO
+    if algo == "sac":
+        from stable_baselines3 import SAC
+        return SAC
+    from sb3_contrib import RecurrentPPO
+    return RecurrentPPO
+
+
+#: what an agent's card may set in its environment: its action, observation and reward, never the
+#: episode (plants, disturbances, start, length) that every controller of the task must share
+AGENT_ENV_KEYS = frozenset({"config", "residual", "observe_params", "observe_phase", "actions", "observation",
+                            "reward"})
+
+
+class AgentPolicy(Controller):
+    """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
+
+    def __init__(self, folder: str | Path):
+        from millvib_env.control.manifest import verify_agent
+
+        folder = Path(folder)
+        card_path = folder / "card.json"
+        if not card_path.exists():
+            raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
+        self.shipped = verify_agent(folder)
+        try:
+            self.card = json.loads(card_path.read_text())
+            self.card["env_id"], self.card["algo"]
+        except (ValueError, KeyError, TypeError) as err:
+            raise ValueError(f"{card_path} is not a valid model card ({type(err).__name__}: {err}); it needs at "
+                             "least 'algo' and 'env_id'") from None
+        self.name = self.card.get("name", folder.name)
+        self.seed = self.card.get("seed", 0)
+        self.env_id = self.card["env_id"]
+        self.task = self.card.get("task", "startup")
+        self.env_kwargs = dict(self.card.get("env_kwargs", {}))
+        episode_keys = sorted(set(self.env_kwargs) - AGENT_ENV_KEYS)
+        if episode_keys:
+            raise ValueError(f"{card_path}: env_kwargs {episode_keys} would change the episode the agent meets (its "
+                             f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
+                             "every controller of a task meets the same plants")
+        if "config" in self.env_kwargs and self.env_kwargs["config"] != get_task(self.task).config:
+            raise ValueError(f"{card_path}: env_kwargs config {self.env_kwargs['config']!r} is not its task's")
+        algo = str(self.card["algo"]).lower()
+        if algo not in ALGOS:
+            raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
+        self.backend = str(self.card.get("backend", "sb3"))
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown backend {self.backend!r} in {card_path}: one of {sorted(BACKENDS)}")
+        cls = algo_class(algo, self.backend)
+        self.recurrent = algo == "recurrentppo"
+        model_path = folder / "model.zip"
+        if not model_path.is_file():
+            raise ValueError(f"{model_path} is missing: not a complete agent folder")
+        try:
+            self.model = cls.load(model_path, device="cpu")
+        except Exception as err:
+            raise ValueError(f"{model_path} cannot be loaded: {type(err).__name__}: {str(err)[:200]}") from None
+        self.obs_stats = None
+        normalize = self.card.get("normalize", "None")
+        if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \
+                not normalize.strip().startswith(("{", "dict(")):
+            raise ValueError(f"{card_path}: normalize = {normalize!r} is invalid: 'None' or the VecNormalize "
+                             "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
+        if normalize.strip() not in ("None", "False", "", "{}"):
+            from millvib_env.control.normalization import STATS_FILE, load_obs_stats
+
+            self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        return obs if self.obs_stats is None else self.obs_stats.normalize(obs)
+
+    def on_reset(self, infos, indices) -> None:
+        self._own_start = True  # a plain loop's recurrent state starts afresh with the episode
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        obs = self.normalize(np.asarray(observation, dtype=np.float32))
+        if self.recurrent:
+            if state is None and episode_start is None and obs.ndim == 1:
+                # a plain Gymnasium loop (ctrl.make_env()): the agent keeps its own LSTM state
+                start = np.array([getattr(self, "_own_start", True)])
+                action, self._own_state = self.model.predict(
+                    obs, state=None if start[0] else getattr(self, "_own_state", None), episode_start=start,
+                    deterministic=deterministic)
+                self._own_start = False
+                return action, None
+            return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        return self.model.predict(obs, deterministic=deterministic)
+
+
+#: the folder of training seed s of a multi-seed agent: <agent>/seed-<s>/
+SEED_FOLDER = re.compile(r"seed-(\d+)")
+
+
+def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
+    """The seeds of an agent folder: {seed: folder} for a single agent (card.json in the folder), or
+    one entry per `seed-<s>/` subfolder of a multi-seed agent (`millvib train --seeds`), by seed."""
+    folder = Path(folder)
+    if (folder / "card.json").exists():
+        try:
+            seed = int(json.loads((folder / "card.json").read_text()).get("seed", 0))
+        except (ValueError, TypeError, AttributeError):
+            seed = 0
+        return {seed: folder}
+    found = {}
+    for p in folder.glob("seed-*"):
+        m = SEED_FOLDER.fullmatch(p.name)
+        if m and p.is_dir():  # a seed folder that lost its card is listed, and fails to load in one line
+            found[int(m.group(1))] = p
+    if found and not any((p / "card.json").exists() for p in found.values()):
+        return {}
+    return dict(sorted(found.items()))
+
+
+def _agent_task(folder: Path) -> str:
+    first = next(iter(agent_seed_folders(folder).values()))
+    try:
+        return json.loads((first / "card.json").read_text()).get("task", "startup")
+    except (ValueError, AttributeError) as err:
+        raise ValueError(f"{first / 'card.json'} is not a valid model card: {err}") from None
+
+
+def list_agents(task: str | None = None) -> list[str]:
+    """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
+    optionally only those trained on `task`."""
+    root = agents_dir()
+    if not root.is_dir():
+        return []
+    names = []
+    for p in sorted(root.iterdir()):
+        if p.is_dir() and agent_seed_folders(p):
+            if task is not None and _agent_task(p) != get_task(task).name:
+                continue
+            names.append(p.name)
+    return names
+
+
+def agent_folder(name: str) -> Path:
+    """The folder of an agent given by name (a shipped agent under agents/: always that one, even where
+    a folder of the same name lies in the working directory) or by path; ValueError if there is none.
+    A shipped agent that is a symbolic link is refused: the manifest covers real folders only."""
+    shipped = agents_dir() / name
+    if "/" not in name and "\\" not in name and name not in (".", "..") and shipped.is_dir():
+        if shipped.is_symlink() or any(p.is_symlink() for p in shipped.iterdir()):
+            raise ValueError(f"agents/{name} is (or holds) a symbolic link: shipped agents are real folders covered "
+                             "by agents/MANIFEST.sha256")
+        path = shipped
+    else:
+        path = Path(name)
+    if not path.is_dir() or not agent_seed_folders(path):
+        raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
+                         f"{list_agents()} or an agent folder path (a folder with card.json, or seed-<s>/ "
+                         "folders that have one)")
+    return path
+
+
+def agent_seeds(name: str) -> list[int]:
+    """The training seeds an agent ships (one for a single-seed folder)."""
+    return list(agent_seed_folders(agent_folder(name)))

@@ -1,0 +1,103 @@
+"""Controllers by name: `load_controller` builds a baseline from its tuned entry in
+configs/control/<task>.yaml (`control.policies`) or loads a trained agent (`control.agents`), so every
+command and the plain Gymnasium loop (`ctrl.make_env()`) get the same controller for the same name.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from millvib_env._paths import config_dir
+from millvib_env._yaml import load_yaml
+from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
+from millvib_env.control.base import Controller, GainTable
+from millvib_env.control.policies import BASELINES, FixedGainPolicy, LQRPolicy, OraclePolicy, baseline_names
+from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import EnvConfig, load_env_config
+from millvib_env.params import PAPER_GAINS
+from millvib_env.tasks import get_task
+
+__all__ = ["load_controller", "load_control_config", "control_entry", "oracle_table"]
+
+
+def load_control_config(task: str = "startup") -> dict[str, Any]:
+    """configs/control/<task>.yaml: the task's tuned baselines (an entry may say `from_task: NAME`)."""
+    name = get_task(task).name
+    path = config_dir() / "control" / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"no tuned baselines for task {name!r}: {path} is missing (run millvib tune "
+                         f"--task {name} --write-config)")
+    return load_yaml(path, "control config", mapping=True)
+
+
+def control_entry(task: str, name: str) -> dict:
+    data = load_control_config(task)
+    if name not in data:
+        raise ValueError(f"configs/control/{get_task(task).name}.yaml has no entry {name!r} (run millvib tune "
+                         f"--task {get_task(task).name} --only {name} --write-config)")
+    entry = data[name]
+    if "from_task" in entry:
+        return control_entry(entry["from_task"], name)
+    return entry
+
+
+def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
+    """An entry's gains (`envs.config.checked_gains`)."""
+    from millvib_env.envs.config import checked_gains
+
+    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
+                         f"configs/control/{get_task(task).name}.yaml {name}.gains")
+
+
+def oracle_table(task: str, name: str = "pid-oracle") -> GainTable:
+    entry = control_entry(task, name)
+    return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
+
+
+def load_controller(name: str, task: str | None = None, config: EnvConfig | None = None,
+                    seed: int | None = None) -> Controller:
+    """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
+    an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest).
+    `task` defaults to the agent's own (startup for a baseline); an agent trained on another task
+    than the one asked for is refused."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
+    if name not in BASELINES:
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+            raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
+        seeds = agent_seed_folders(agent_folder(name))
+        if seed is None:
+            seed = next(iter(seeds))
+        if seed not in seeds:
+            raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
+        agent = AgentPolicy(seeds[seed])
+        if task is not None and get_task(task).name != agent.task:
+            raise ValueError(f"agent {name!r} was trained on task {agent.task!r}, not {get_task(task).name!r}: "
+                             f"run it with task {agent.task!r}")
+        return agent
+    task = get_task(task if task is not None else "startup").name
+    gain_map = GainMap.from_config(config or load_env_config(get_task(task).config))
+    ctrl: Controller
+    if name == "pid-paper":
+        ctrl = FixedGainPolicy(name, PAPER_GAINS, gain_map, BASELINES[name])
+    elif name in ("pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"):
+        entry = control_entry(task, name)
+        ctrl = FixedGainPolicy(name, _checked_gains(task, name, entry), gain_map, entry.get("how", ""))
+    elif name in ("pid-oracle", "pid-pf-oracle"):
+        ctrl = OraclePolicy(oracle_table(task, name), gain_map, name, task)
+    elif name == "lqr-oracle":
+        from millvib_env.control.lqr import LQRWeights
+
+        entry = control_entry(task, name)
+        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), load_env_config(get_task(task).config).base_params, task)
+    elif name == "pid-adaptive":
+        from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
+
+        entry = control_entry(task, name)
+        cfg = config or load_env_config(get_task(task).config)
+        ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]), cfg.base_params,
+                              sample_rate_hz=cfg.sample_rate_hz)
+    ctrl.task = task
+    return ctrl
