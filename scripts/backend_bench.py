@@ -22,7 +22,7 @@ CONFIG = {"sac": "configs/agents/pf/sac.yml", "ppo": "configs/agents/pf/ppo.yml"
 RUN = """
 import sys, time
 algo, backend, config, steps = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
-from millvib_env.training.train import _algo_class, resolve_named_gains
+from millvib_env.training.train import _algo_class, jit_noise_key_split, resolve_named_gains
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.envs.vec_env import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
@@ -34,6 +34,8 @@ n_envs = hp.pop("n_envs"); hp.pop("n_timesteps"); policy = hp.pop("policy"); hp.
 env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), "startup")
 venv = VecNormalize(make_vec_env("MillVib-GainSchedule-v0", n_envs, seed=1, **env_kwargs), gamma=hp.get("gamma", 0.99))
 model = cls(policy, venv, seed=0, device="cpu", verbose=0, **hp)
+if backend == "sbx":
+    jit_noise_key_split(model)  # as millvib train does
 model.learn(int(hp.get("learning_starts", 0)) + 2 * int(hp.get("n_steps", 1)) * n_envs + 1000)
 t = time.perf_counter()
 model.learn(steps, reset_num_timesteps=False)

@@ -58,22 +58,46 @@ def test_oracle_needs_and_uses_the_true_parameters():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("algo", ["ppo", "sac", "recurrentppo"])
-def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo):
+@pytest.mark.parametrize("algo, backend", [("ppo", "sb3"), ("sac", "sb3"), ("recurrentppo", "sb3"), ("sac", "sbx"),
+                                           ("ppo", "sbx")])
+def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
+    if backend == "sbx":
+        pytest.importorskip("sbx")
     policy = "MlpLstmPolicy" if algo == "recurrentppo" else "MlpPolicy"
     cfg = tmp_path / f"{algo}.yml"
     cfg.write_text(TINY.format(policy=policy, extra=EXTRA[algo]))
     kw = dict(config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2,
-              checkpoint_freq=128, progress=False)
+              checkpoint_freq=128, progress=False, backend=backend)
     card = train(algo, seed=3, save_dir=str(tmp_path / "agent"), **kw)
-    assert card["n_timesteps"] >= 256 and card["seed"] == 3
+    assert card["n_timesteps"] >= 256 and card["seed"] == 3 and card["backend"] == backend
     for name in ("model.zip", "vecnormalize.npz", "card.json", "evaluations.npz"):  # the curve too
         assert (tmp_path / "agent" / name).exists()
     agent = load_controller(str(tmp_path / "agent"))
+    assert agent.backend == backend
+    assert type(agent.model).__module__.split(".")[0] == {"sb3": "sb3_contrib" if algo == "recurrentppo"
+                                                          else "stable_baselines3", "sbx": "sbx"}[backend]
     recs = run_episodes(agent, [0, 1])
     assert all(np.isfinite(r["cost"]) for r in recs)
     resumed = train(algo, seed=3, n_timesteps=512, resume=True, **kw)
     assert resumed["n_timesteps"] >= 512
+
+
+@pytest.mark.parametrize("backend", ["sb3", "sbx"])
+def test_a_new_sac_starts_at_the_zero_action(backend):
+    # the relative action's zero is the base controller: a new agent starts from it in either backend
+    from millvib_env.control.agents import algo_class
+    from millvib_env.envs.vec_env import make_vec_env
+    from millvib_env.training.train import start_at_zero_action
+
+    if backend == "sbx":
+        pytest.importorskip("sbx")
+    venv = make_vec_env("MillVib-GainSchedule-v0", 2, seed=0)
+    model = algo_class("sac", backend)("MlpPolicy", venv, seed=0, device="cpu")
+    obs = np.random.default_rng(0).standard_normal((16, *venv.observation_space.shape)).astype(np.float32)
+    before = np.abs(model.predict(obs, deterministic=True)[0]).max()
+    start_at_zero_action(model)
+    after = np.abs(model.predict(obs, deterministic=True)[0]).max()
+    assert after < 0.05 < before
 
 
 def test_benchmark_is_deterministic_and_has_the_schema():

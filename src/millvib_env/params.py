@@ -229,19 +229,23 @@ def list_presets() -> list[str]:
 
 def load_preset(name: str = "paper") -> MillParams:
     """Load `configs/plant/<name>.yaml` (or a path to a YAML file) as MillParams."""
+    if not isinstance(name, (str, Path)) or not str(name):
+        raise ValueError(f"preset = {name!r:.60} is invalid: a preset name {list_presets()} or a YAML path")
     path = Path(name)
     if not path.suffix:
         path = config_dir() / "plant" / f"{name}.yaml"
         if not path.exists():
-            raise ValueError(f"plant preset {name!r} not found; available: {list_presets()}")
+            raise ValueError(f"plant preset {name!r} not found (no file {path}); available: {list_presets()}")
     return MillParams.from_yaml(path)
 
 
 def parse_overrides(items: list[str] | None) -> dict[str, float]:
     """Parse CLI overrides like ["c1=2.25e5", "Ct=5e-9"] into a dict of floats."""
     out: dict[str, float] = {}
+    if items is not None and (isinstance(items, str) or not isinstance(items, (list, tuple))):
+        raise ValueError(f"overrides = {items!r:.60} is invalid: a list of NAME=VALUE strings")
     for item in items or []:
-        if "=" not in item:
+        if not isinstance(item, str) or "=" not in item:
             raise ValueError(f"override {item!r} must look like NAME=VALUE (e.g. c1=2.25e5)")
         key, _, value = item.partition("=")
         out[key.strip()] = _as_float(key.strip(), value.strip())

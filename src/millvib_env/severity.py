@@ -41,10 +41,11 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-from millvib_env._yaml import load_yaml
 from scipy import fft as sfft
 
+from millvib_env._checks import band as checked_band, choice, real
 from millvib_env._paths import config_dir
+from millvib_env._yaml import load_yaml
 
 __all__ = ["vibration_severity", "band_velocity_spectrum", "band_levels", "iso_zone", "IsoZoneTable", "iso_table"]
 
@@ -69,17 +70,14 @@ def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | Non
         raise ValueError(f"signal = {str(signal)[:40]!r} is invalid: a 1-D array of numbers") from None
     if x.ndim != 1:
         raise ValueError(f"signal must be 1-D, got shape {x.shape}")
-    if quantity not in _POWER:
-        raise ValueError(f"quantity = {quantity!r} is invalid: one of {sorted(_POWER)}")
+    choice("quantity", quantity, sorted(_POWER))
     if x.size < 8:
         raise ValueError(f"signal has {x.size} samples; at least 8 are needed")
     if not np.all(np.isfinite(x)):
         raise ValueError("signal contains NaN or inf (a diverged simulation has no severity)")
     if not (math.isfinite(fs) and fs > 0):
         raise ValueError(f"fs = {fs!r} Hz is invalid: must be finite and > 0")
-    lo, hi = band if band is not None else severity_band()
-    if not (0 <= lo < hi):
-        raise ValueError(f"band = {band!r} is invalid: need 0 <= low < high (Hz)")
+    lo, hi = checked_band("band", band) or severity_band()
     if hi > fs / 2:
         raise ValueError(f"band upper edge {hi} Hz is above the Nyquist frequency {fs / 2} Hz (fs = {fs} Hz)")
     duration = x.size / fs
@@ -117,8 +115,8 @@ def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity 
     Returns (frequencies Hz, V_k); bins outside the band are zero. Acceleration is divided by
     j*omega, displacement multiplied by it.
     """
-    band = severity_band() if band is None else band
     x = _check_signal(signal, fs, band, quantity)
+    band = severity_band() if band is None else checked_band("band", band)
     ext = _smooth_extension(x, fs, quantity)
     spec = sfft.rfft(ext)
     freqs = sfft.rfftfreq(ext.size, d=1.0 / fs)
@@ -168,12 +166,17 @@ def band_levels(signal: np.ndarray, fs: float, *, quantity: Quantity = "accelera
     The squares of the parts are parts of the broadband square (the line and the low band overlap
     only if line_hz < 100 Hz).
     """
-    band = severity_band() if band is None else band
     freqs, vel = band_velocity_spectrum(signal, fs, quantity=quantity, band=band)
+    band = severity_band() if band is None else checked_band("band", band)
+    if low_band is None:
+        raise ValueError("low_band = None is invalid: a (low, high) pair in Hz with 0 <= low < high")
+    low_band = checked_band("low_band", low_band)
+    line_hz = real("line_hz", line_hz, lo=0.0)
     n = 2 * len(signal)
     resolution = fs / n
     if line_width_hz is None:
         line_width_hz = max(3.0, 2.0 * resolution)
+    line_width_hz = real("line_width_hz", line_width_hz, lo=0.0, lo_open=True)
     if line_width_hz < resolution:
         raise ValueError(f"line_width_hz = {line_width_hz} Hz is below the record's resolution {resolution:.3g} Hz")
     _check_signal(signal, fs, low_band, quantity)
@@ -258,7 +261,7 @@ def _load_iso_tables() -> tuple[str, str, dict[str, IsoZoneTable]]:
 def iso_table(name: str | None = None) -> IsoZoneTable:
     """The ISO 20816-3 zone table `name` from configs/severity.yaml (default: its default_class)."""
     default, _, tables = _load_iso_tables()
-    key = default if name is None else name
+    key = default if name is None else choice("machine_class", name, sorted(tables))
     if key not in tables:
         raise ValueError(f"ISO machine class {key!r} unknown; available: {sorted(tables)}")
     return tables[key]

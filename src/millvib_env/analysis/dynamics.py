@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal as ssig
 
+from millvib_env._checks import instance, integer, real
 from millvib_env.plant.integrate import SimResult
 from millvib_env.severity import vibration_severity
 
@@ -53,6 +54,11 @@ def classify_motion(result: SimResult, *, tail: float = 0.4, tol: float = 0.02, 
     detrended displacement decides: k repeating maximum levels (within tol x peak-to-peak) =
     period-k, no repeating pattern up to `max_period` = quasi-periodic.
     """
+    instance("result", result, SimResult, "a SimResult (plant.integrate.simulate)")
+    tail = real("tail", tail, lo=0.0, hi=1.0, lo_open=True)
+    tol = real("tol", tol, lo=0.0, lo_open=True)
+    max_period = integer("max_period", max_period, lo=1, hi=64)
+    settled_mm_s = real("settled_mm_s", settled_mm_s, lo=0.0)
     if result.diverged:
         return Motion("diverged", 0, float("nan"), float("nan"), 0)
     n = len(result.x)

@@ -32,6 +32,7 @@ from typing import Literal, Sequence
 import numpy as np
 from scipy import optimize
 
+from millvib_env._checks import instance, real, reals
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.integrate import state_scale
 from millvib_env.plant.kernel import rhs_vector
@@ -87,6 +88,8 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     in x with the integral term frozen at `uI` (``integral="frozen"``), or in uI with x = xd
     (``"settled"``).
     """
+    _check_plant(params, gains)
+    xd = _check_xd(params, xd)
     if friction not in ("stick", "sliding"):
         raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
     if integral not in ("frozen", "settled"):
@@ -132,6 +135,17 @@ def _numerical_jacobian(f, y0: np.ndarray, scale: np.ndarray, friction: str) -> 
         # into x (the bristle spring then acts on x) and drop the structural zero eigenvalue
         J[:, IX] += J[:, IZ]
     return J
+
+
+def _check_plant(params, gains=False) -> None:
+    instance("params", params, MillParams, "a MillParams")
+    if gains is not False:
+        instance("gains", gains, PIDGains, "a PIDGains")
+
+
+def _check_xd(params: MillParams, xd) -> float:
+    """A set-point inside the stroke (-L1, L - L1)."""
+    return real("xd", xd, lo=-params.L1, hi=params.L - params.L1, lo_open=True, hi_open=True)
 
 
 def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndarray:
@@ -193,6 +207,8 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
     friction linearisation is chosen as for `jacobian` (stick: the bristle spring folded into x;
     sliding: saturated bristles).
     """
+    _check_plant(params)
+    xd = _check_xd(params, xd)
     if friction not in ("stick", "sliding"):
         raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
     mean = params.replace(pulse_amp=0.0)
@@ -218,6 +234,7 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
                       integral: str = "frozen") -> float:
     """Largest real part of the loop's eigenvalues (1/s): < 0 stable, > 0 unstable."""
+    _check_plant(params, gains)
     op = operating_point(params, gains, xd, friction=friction, integral=integral)
     return float(np.max(np.linalg.eigvals(jacobian(params, gains, op)).real))
 
@@ -228,6 +245,9 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
 
     Returns inf if the loop is stable over all of `kp_range`, 0 if unstable at its low end.
     """
+    _check_plant(params)
+    ki, kd, xd = real("ki", ki, lo=0.0), real("kd", kd, lo=0.0), real("xd", xd)
+    kp_lo, kp_hi = reals("kp_range", kp_range, lo=0.0, lo_open=True, min_len=2)[:2]
     def g(log_kp: float) -> float:
         try:
             s = spectral_abscissa(params, PIDGains(10.0**log_kp, ki, kd), xd, friction=friction)
@@ -235,7 +255,7 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
             return 1.0  # no equilibrium: count as unstable
         return s
 
-    lo, hi = math.log10(kp_range[0]), math.log10(kp_range[1])
+    lo, hi = math.log10(kp_lo), math.log10(kp_hi)
     if g(lo) > 0:
         return 0.0
     if g(hi) < 0:
@@ -253,7 +273,9 @@ def stability_map(c1_values: Sequence[float], Ct_values: Sequence[float], *, bas
                   ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
                   progress: bool = False) -> np.ndarray:
     """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values))."""
-    base = base or MillParams()
+    c1_values = reals("c1_values", c1_values, lo=0.0, lo_open=True)
+    Ct_values = reals("Ct_values", Ct_values, lo=0.0)
+    base = MillParams() if base is None else instance("base", base, MillParams, "None or a MillParams")
     out = np.empty((len(c1_values), len(Ct_values)))
     cells = [(i, j) for i in range(len(c1_values)) for j in range(len(Ct_values))]
     if progress:

@@ -64,6 +64,8 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
     than the one asked for is refused."""
     if not isinstance(name, str) or not name:
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
+    if config is not None and not isinstance(config, EnvConfig):
+        raise ValueError(f"config = {config!r:.60} is invalid: None or an EnvConfig (envs.config.load_env_config)")
     if name not in BASELINES:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from millvib_env._checks import instance
 from millvib_env.analysis.linear import linearize
 from millvib_env.threads import one_blas_thread
 from millvib_env.params import MillParams
@@ -57,6 +58,7 @@ class LQRWeights:
 
 def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0):
     """(K, A_cl, A_aug, B_aug) of the scaled-coordinate design, K in SI units (V per unit state)."""
+    instance("weights", weights, LQRWeights, "an LQRWeights")
     ss = linearize(params, xd, friction=weights.friction)
     A = np.zeros((4, 4))
     A[:3, :3] = ss.A

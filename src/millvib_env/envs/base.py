@@ -6,6 +6,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from millvib_env._checks import seed_or_none
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 
@@ -39,7 +40,7 @@ class MillVibEnv(gym.Env):
         return self.core.params[0]
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        super().reset(seed=seed_or_none("seed", seed))
         self.core.np_random[0] = self.np_random
         obs, info = self.core.reset_env(0, None, options)
         self._episode_over = False

@@ -21,7 +21,7 @@ ENV_IDS = {"MillVib-GainSchedule-v0": "gain", "MillVib-Valve-v0": "valve"}
 
 
 def env_mode(env_id: str) -> str:
-    if env_id not in ENV_IDS:
+    if not isinstance(env_id, str) or env_id not in ENV_IDS:
         raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
     return ENV_IDS[env_id]
 

@@ -40,7 +40,7 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
     if not path.suffix:
         path = config_dir() / "env" / f"{name}.yaml"
     if not path.is_file():
-        raise ValueError(f"environment config {str(name)!r} not found; available: {list_env_configs()} "
+        raise ValueError(f"environment config {str(name)!r} not found (no file {path}); available: {list_env_configs()} "
                          "or a path to a .yaml file")
     if path.resolve() in _seen:
         raise ValueError(f"environment config {path}: 'inherit' forms a cycle")

@@ -9,6 +9,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
+from millvib_env._checks import seed_or_none
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 
@@ -44,6 +45,11 @@ class MillVibVecEnv(VecEnv):
             self.seed(seed)
 
     # --- VecEnv API -----------------------------------------------------------------------------
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        """Seed environment i with `seed` + i at the next reset (SB3's VecEnv.seed), the public way
+        to give a VecEnv's environments their plants."""
+        return super().seed(seed_or_none("seed", seed))
+
     def reset(self) -> np.ndarray:
         obs = np.zeros((self.num_envs, *self.observation_space.shape), dtype=np.float32)
         for i in range(self.num_envs):

@@ -22,6 +22,7 @@ from typing import Callable, Sequence, Union
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from millvib_env._checks import choice, instance, real
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.model import (AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, PlantChange,
@@ -110,10 +111,8 @@ class SimResult:
         if self.diverged:
             raise ValueError(f"run diverged at t = {self.t_diverged:.6g} s ({self.status}); "
                              "a diverged run has no severity")
-        signals = {"acceleration": self.a, "velocity": self.v, "displacement": self.x}
-        if quantity not in signals:
-            raise ValueError(f"quantity = {quantity!r} is invalid: one of {list(signals)}")
-        sig = signals[quantity]
+        names = ("acceleration", "velocity", "displacement")
+        sig = {"acceleration": self.a, "velocity": self.v, "displacement": self.x}[choice("quantity", quantity, names)]
         return vibration_severity(sig[self.window(t_start)], 1.0 / self.dt, quantity=quantity, band=band)
 
     def iso_zone(self, **kw) -> str:
@@ -207,13 +206,20 @@ def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     return np.arange(n) * dt_out
 
 
+def _as_floats(name: str, value) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} = {value!r:.60} is invalid: a number or an array of numbers (m)") from None
+
+
 def _xd_samples(xd: XdSpec, t: np.ndarray, n_plants: int) -> np.ndarray:
     if callable(xd):
-        vals = np.asarray(xd(t), dtype=np.float64)
+        vals = _as_floats("xd(t)", xd(t))
         if vals.shape == ():
             vals = np.array([float(xd(tk)) for tk in t])
     else:
-        vals = np.asarray(xd, dtype=np.float64)
+        vals = _as_floats("xd", xd)
     if vals.ndim == 0:
         vals = np.full(t.shape, float(vals))
     if vals.shape[-1] != t.size or vals.ndim > 2:
@@ -227,7 +233,11 @@ def _xd_samples(xd: XdSpec, t: np.ndarray, n_plants: int) -> np.ndarray:
 def _as_list(obj, cls, n: int | None, name: str) -> list:
     if isinstance(obj, cls):
         return [obj] * (n or 1)
+    if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__iter__"):
+        raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
     items = list(obj)
+    if not items:
+        raise ValueError(f"{name} is empty: give at least one {cls.__name__}")
     for item in items:
         if not isinstance(item, cls):
             raise ValueError(f"{name} must be {cls.__name__} or a sequence of them, got {type(item).__name__}")
@@ -235,9 +245,7 @@ def _as_list(obj, cls, n: int | None, name: str) -> list:
 
 
 def _check_rtol(rtol: float) -> float:
-    if not (math.isfinite(rtol) and 1e-14 <= rtol <= 1e-2):
-        raise ValueError(f"rtol = {rtol!r} is invalid: allowed range is [1e-14, 1e-2]")
-    return float(rtol)
+    return real("rtol", rtol, lo=1e-14, hi=1e-2)
 
 
 # --- public API ---------------------------------------------------------------------------------
@@ -267,8 +275,8 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     With ``gains.kpl > 0`` the pressure feedback acts on pL - pL(0): the reference is the initial
     chamber pressure.
     """
-    params = params or MillParams()
-    gains = gains or PAPER_GAINS
+    params = MillParams() if params is None else instance("params", params, MillParams, "a MillParams")
+    gains = PAPER_GAINS if gains is None else instance("gains", gains, PIDGains, "a PIDGains")
     res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
                          ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
                          y0=None if y0 is None else np.asarray(y0)[None, :], change=change,
@@ -294,8 +302,10 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     t = _time_grid(t_end, dt_out)
     t_end, dt_out = float(t_end), float(dt_out)
     n = None
-    for obj in (params, gains):
-        if not isinstance(obj, (MillParams, PIDGains)):
+    for obj, cls, name in ((params, MillParams, "params"), (gains, PIDGains, "gains")):
+        if not isinstance(obj, cls):
+            if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__len__"):
+                raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
             n = len(obj) if n is None else n
     p_list = _as_list(params, MillParams, n, "params")
     g_list = _as_list(gains, PIDGains, n, "gains")
@@ -303,7 +313,10 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         raise ValueError(f"params ({len(p_list)}) and gains ({len(g_list)}) must have the same length")
     N = len(p_list)
     XD = _xd_samples(xd, t, N)
-    x0s = np.broadcast_to(np.asarray(x0, dtype=np.float64), (N,))
+    x0a = _as_floats("x0", x0)
+    if x0a.ndim > 1 or x0a.size not in (1, N):
+        raise ValueError(f"x0 = {x0!r:.60} is invalid: a number (m) or one per plant ({N})")
+    x0s = np.broadcast_to(x0a.reshape(-1), (N,))
     if not np.all(np.isfinite(x0s)):
         raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
     P = np.stack([pack(p) for p in p_list])

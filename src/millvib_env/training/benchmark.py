@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from millvib_env._checks import strings
 from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.control.agents import list_agents
 from millvib_env.control.base import Controller
@@ -138,9 +139,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
-    if isinstance(controllers, str):
-        raise ValueError(f"controllers = {controllers!r} is invalid: a list of names (e.g. [{controllers!r}])")
-    names = list(dict.fromkeys(controllers)) if controllers else baseline_names() + list_agents(t.name)
+    names = list(dict.fromkeys(strings("controllers", controllers, "controller names"))) if controllers is not None \
+        else baseline_names() + list_agents(t.name)
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")

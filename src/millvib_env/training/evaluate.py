@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from millvib_env._checks import instance, integer, integers, real
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 
@@ -23,8 +24,14 @@ COST_SCALES = {"severity_mm_s": 4.5, "tracking_um": 10.0}
 
 
 def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | None = None) -> float:
-    s = scales or COST_SCALES
-    return severity_mm_s / s["severity_mm_s"] + tracking_rms_um / s["tracking_um"]
+    """The benchmark's cost of an episode: severity / scale + tracking RMS / scale (`COST_SCALES`)."""
+    s = COST_SCALES if scales is None else scales
+    if not isinstance(s, dict) or set(s) != set(COST_SCALES):
+        raise ValueError(f"scales = {scales!r:.60} is invalid: None or a dict with keys {sorted(COST_SCALES)}")
+    sev = real("severity_mm_s", severity_mm_s, lo=0.0)
+    trk = real("tracking_rms_um", tracking_rms_um, lo=0.0)
+    return sev / real("scales['severity_mm_s']", s["severity_mm_s"], lo=0.0, lo_open=True) + \
+        trk / real("scales['tracking_um']", s["tracking_um"], lo=0.0, lo_open=True)
 
 
 def env_kwargs_for(controller: Controller, task: str | None = None, env_kwargs: dict | None = None) -> dict:
@@ -40,6 +47,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
     are merged on top). Controllers that estimate the plant get every step's measured signals.
     """
+    instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
+    seeds = integers("seeds", seeds)
     env_id = env_id or controller.env_id
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     n = len(seeds)
@@ -91,6 +100,8 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     of every agent step (empty for valve policies)."""
     from millvib_env.plant.model import A_ACC, A_U, IV, IX
 
+    instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
+    seed = integer("seed", seed, lo=0)
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     venv = EpisodeBatch(controller.env_id, 1, **kwargs)
     venv.core.record_signals = controller.needs_signals

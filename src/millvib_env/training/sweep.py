@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
+from millvib_env._checks import integer, strings
 from millvib_env.params import studied_range
 from millvib_env.tasks import get_task
 
@@ -54,10 +55,9 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     t = get_task(task)
     if isinstance(plants, bool) or not isinstance(plants, int) or plants < 1:
         raise ValueError(f"--plants {plants!r} is invalid: a whole number >= 1")
-    for arg, value in (("controllers", controllers), ("params", params)):
-        if isinstance(value, str):
-            raise ValueError(f"{arg} = {value!r} is invalid: a list of names (e.g. [{value!r}])")
-    params = list(dict.fromkeys(params))
+    controllers = strings("controllers", controllers, "controller names")
+    params = list(dict.fromkeys(strings("params", params, "parameter names")))
+    seed = None if seed is None else integer("seed", seed, lo=0)
     randomize = _randomize(t.name, params)
     first = t.seeds["heldout"].start + SEED_OFFSET if seed is None else seed
     seeds = list(range(first, first + plants))

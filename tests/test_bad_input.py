@@ -1,0 +1,237 @@
+"""Bad input across the whole surface: every subcommand's flags, every output path, every config file
+and the public API's arguments give one line (exit 2 in the CLI, a ValueError in the API), never a
+traceback, a hang or a silent NaN."""
+import math
+import os
+import shutil
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from millvib_env import MillParams, PIDGains, severity, tasks
+from millvib_env._paths import config_dir
+from millvib_env.cli import main as cli_main
+
+
+def _run(argv, capsys):
+    capsys.readouterr()
+    try:
+        status = cli_main(argv)
+    except SystemExit as exc:  # argparse's own refusals
+        status = exc.code
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err + out.out, (argv, out.err)
+    return status, out.err.strip().splitlines()
+
+
+def _one_line_refusal(argv, capsys):
+    status, err = _run(argv, capsys)
+    assert status == 2 and len(err) == 1 and "error" in err[0], (argv, err)
+    return err[0]
+
+
+# --- the subcommands the older fuzz (test_reliability) leaves out ----------------------------------
+ODD = ["0", "-1", "1", "2.5", "1e9", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "bogus", "pid-paper"]
+FLAGS = {
+    # each base runs in a few seconds when every drawn value is valid
+    "reproduce": (["--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet", "--out", "r"],
+                  ["--t-end", "--resolution", "--out", "--method"]),
+    "bench": (["--t-end", "0.05", "--repeats", "1", "--plant-only", "--quiet"], ["--t-end", "--repeats", "--json"]),
+    "tune": (["--only", "pid-nominal", "--quiet", "--grid", "abc"],  # --grid abc: never tunes
+             ["--task", "--only", "--from", "--optuna", "--trials", "--out"]),
+    "scenarios": (["--no-measure"], []),
+    "tasks": ([], []),
+    "params": ([], []),
+}
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                  HealthCheck.function_scoped_fixture])
+@given(command=st.sampled_from(sorted(FLAGS)), data=st.data())
+def test_every_subcommand_answers_odd_flags_with_0_or_one_line(command, data, tmp_path_factory, capsys):
+    base, flags = FLAGS[command]
+    argv = [command, *base]
+    if flags:
+        for flag, value in data.draw(st.lists(st.tuples(st.sampled_from(flags), st.sampled_from(ODD)), min_size=1,
+                                              max_size=2)):
+            argv += [flag, value]
+    here = os.getcwd()
+    os.chdir(tmp_path_factory.mktemp("cwd"))
+    try:
+        status, err = _run(argv, capsys)
+    finally:
+        os.chdir(here)
+    assert status in (0, 2), (argv, err)
+    if status == 2:
+        assert len(err) == 1 and "error" in err[0], (argv, err)
+
+
+# --- output paths ---------------------------------------------------------------------------------
+OUTPUTS = [
+    (["simulate", "--t-end", "0.2"], "--plot", ".png"), (["simulate", "--t-end", "0.2"], "--csv", ".csv"),
+    (["reproduce", "--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet"], "--out", ""),
+    (["bench", "--t-end", "0.05", "--repeats", "1", "--plant-only", "--quiet"], "--json", ".json"),
+    (["tune", "--only", "pid-nominal", "--quiet"], "--out", ".yaml"),
+    (["sweep", "--controllers", "pid-paper", "--plants", "2", "--quiet"], "--out", ""),
+    (["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios", "--quiet"], "--json", ".json"),
+    (["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios", "--quiet"], "--out", ""),
+    (["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"], "--save-dir", ""),
+    (["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"], "--log-dir", ""),
+]
+BAD_PATHS = {"in /proc": "/proc/version/x", "under a file": "a-file/x", "a name over 255 bytes": "x" * 300,
+             "under a long name": "d/" + "y" * 300 + "/z", "the root": "/"}
+
+
+@pytest.mark.parametrize("kind", sorted(BAD_PATHS))
+@pytest.mark.parametrize("argv, flag, ext", OUTPUTS, ids=[f"{a[0]}{f}" for a, f, _ in OUTPUTS])
+def test_an_output_path_that_cannot_be_written_is_refused_before_the_work(argv, flag, ext, kind, tmp_path,
+                                                                          monkeypatch, capsys):
+    if flag == "--log-dir" and kind == "the root":
+        pytest.skip("a log folder makes its run folder inside LOG_DIR, which may be / for root")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a-file").write_text("a user's file\n")
+    path = BAD_PATHS[kind] + ("" if kind == "the root" else ext)
+    line = _one_line_refusal(argv + [flag, path], capsys)
+    assert flag in line or "out" in line, line
+    assert (tmp_path / "a-file").read_text() == "a user's file\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]  # nothing was written beside it
+
+
+# --- config files ---------------------------------------------------------------------------------
+DAMAGE = {"broken YAML": "a: [1, 2\n", "a !!python tag": "!!python/object/apply:os.system ['touch PWNED']\n",
+          "a list": "- 1\n- 2\n", "not UTF-8": b"\xff\xfe\x00\x01", "nested too deeply": "[" * 5000 + "]" * 5000,
+          "a folder": None, "missing": "MISSING"}
+#: file -> a command that reads it
+READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
+           "severity.yaml": ["simulate", "--t-end", "0.2"],
+           "tasks.yaml": ["tasks"],
+           "env/startup.yaml": ["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios",
+                                "--quiet"],
+           "control/startup.yaml": ["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--no-scenarios",
+                                    "--quiet"],
+           "agents/ppo.yml": ["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"]}
+
+
+@pytest.fixture
+def damaged_configs(tmp_path, monkeypatch):
+    root = tmp_path / "configs"
+    shutil.copytree(config_dir(), root)
+    monkeypatch.setenv("MILLVIB_CONFIGS", str(root))
+    monkeypatch.chdir(tmp_path)
+    severity._load_severity_config.cache_clear()
+    tasks._load.cache_clear()
+    yield root
+    severity._load_severity_config.cache_clear()
+    tasks._load.cache_clear()
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGE))
+@pytest.mark.parametrize("name", sorted(READERS))
+def test_a_damaged_config_file_is_named_in_one_line(name, damage, damaged_configs, capsys):
+    path = damaged_configs / name
+    path.unlink()
+    text = DAMAGE[damage]
+    if text is None:
+        path.mkdir()
+    elif text != "MISSING":
+        path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    line = _one_line_refusal(READERS[name], capsys)
+    assert os.path.basename(name) in line, line
+    assert not (damaged_configs.parent / "PWNED").exists()  # nothing loaded from a config runs code
+
+
+@pytest.mark.parametrize("field, value", [("c1", "nan"), ("c1", -1.0), ("A1", [1, 2]), ("bogus", 1.0),
+                                          ("params", "text")])
+def test_a_preset_with_a_bad_value_names_the_field(field, value, tmp_path):
+    import yaml
+
+    from millvib_env.params import load_preset
+
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump({field: value}))
+    with pytest.raises(ValueError, match=field if field != "params" else "must map"):
+        load_preset(str(path))
+
+
+# --- the public API -------------------------------------------------------------------------------
+WRONG = [None, "abc", -1, float("nan"), float("inf"), [], {}, True, object(), [1.0, 2.0]]
+
+
+def _api_calls():
+    from millvib_env.analysis.dynamics import classify_motion
+    from millvib_env.analysis.linear import critical_kp, linearize, spectral_abscissa, stability_map
+    from millvib_env.control.factory import load_controller
+    from millvib_env.control.lqr import LQRWeights, lqr_gains
+    from millvib_env.envs.vec_env import make_vec_env
+    from millvib_env.params import load_preset, parse_overrides
+    from millvib_env.plant.integrate import simulate, simulate_batch
+    from millvib_env.severity import band_levels, iso_zone, vibration_severity
+    from millvib_env.training.benchmark import run_benchmark
+    from millvib_env.training.evaluate import episode_cost, run_episodes, trace_episode
+    from millvib_env.training.sweep import run_sweep
+
+    p, g = MillParams(), PIDGains(1e5, 1e-3)
+    sig = np.random.default_rng(0).standard_normal(2000)
+    run = simulate(p, g, 0.3)
+    ctrl = load_controller("pid-paper")
+    quiet = {"progress": False}
+    return {
+        "simulate": (lambda **k: simulate(**{"params": p, "gains": g, "t_end": 0.02, **k}),
+                     ["params", "gains", "t_end", "x0", "xd", "rtol"]),
+        "simulate_batch": (lambda **k: simulate_batch(**{"params": [p], "gains": [g], "t_end": 0.02, **k}),
+                           ["params", "gains", "x0"]),
+        "vibration_severity": (lambda **k: vibration_severity(**{"signal": sig, "fs": 1e4, **k}),
+                               ["signal", "fs", "quantity", "band"]),
+        "band_levels": (lambda **k: band_levels(**{"signal": sig, "fs": 1e4, **k}), ["band", "low_band", "line_hz"]),
+        "iso_zone": (lambda **k: iso_zone(**{"severity_mm_s": 1.0, **k}), ["severity_mm_s", "machine_class"]),
+        "SimResult.severity": (lambda **k: run.severity(**k), ["t_start", "quantity", "band"]),
+        "classify_motion": (lambda **k: classify_motion(**{"result": run, **k}), ["result", "tail", "max_period"]),
+        "linearize": (lambda **k: linearize(**{"params": p, **k}), ["params", "xd"]),
+        "spectral_abscissa": (lambda **k: spectral_abscissa(**{"params": p, "gains": g, **k}),
+                              ["params", "gains", "xd"]),
+        "critical_kp": (lambda **k: critical_kp(**{"params": p, **k}), ["params", "ki", "kd"]),
+        "stability_map": (lambda **k: stability_map(**{"c1_values": [2e5], "Ct_values": [1e-11], **k}),
+                          ["c1_values", "Ct_values", "base"]),
+        "lqr_gains": (lambda **k: lqr_gains(**{"params": p, "weights": LQRWeights(), **k}),
+                      ["params", "weights", "xd"]),
+        "load_controller": (lambda **k: load_controller(**{"name": "pid-robust", **k}),
+                            ["name", "task", "config", "seed"]),
+        "run_episodes": (lambda **k: run_episodes(**{"controller": ctrl, "seeds": [0], **k}), ["controller", "seeds"]),
+        "trace_episode": (lambda **k: trace_episode(**{"controller": ctrl, **k}), ["controller", "seed"]),
+        "episode_cost": (lambda **k: episode_cost(**{"severity_mm_s": 1.0, "tracking_rms_um": 1.0, **k}),
+                         ["severity_mm_s", "tracking_rms_um", "scales"]),
+        "run_benchmark": (lambda **k: run_benchmark(**{"controllers": ["pid-paper"], "episodes": 2,
+                                                       "scenarios": False, **quiet, **k}),
+                          ["controllers", "episodes", "seed", "task", "reference"]),
+        "run_sweep": (lambda **k: run_sweep(**{"controllers": ["pid-paper"], "plants": 2, **quiet, **k}),
+                      ["controllers", "plants", "params", "seed", "task"]),
+        "make_vec_env": (lambda **k: make_vec_env(**{"env_id": "MillVib-GainSchedule-v0", "n_envs": 2, **k}),
+                         ["env_id", "n_envs", "seed"]),
+        "load_preset": (lambda **k: load_preset(**k), ["name"]),
+        "parse_overrides": (lambda **k: parse_overrides(**k), ["items"]),
+    }
+
+
+def test_every_public_function_refuses_wrong_arguments_with_a_valueerror():
+    import gymnasium as gym
+
+    calls = _api_calls()
+    env = gym.make("MillVib-GainSchedule-v0")
+    calls["env.reset"] = (lambda **k: env.reset(**k), ["seed"])
+    failures = []
+    for name, (fn, args) in calls.items():
+        for arg in args:
+            for value in WRONG:
+                try:
+                    out = fn(**{arg: value})
+                except ValueError:
+                    continue
+                except Exception as err:  # noqa: BLE001 - what the test looks for
+                    failures.append(f"{name}({arg}={value!r:.30}): {type(err).__name__}: {str(err)[:80]}")
+                    continue
+                results = out if isinstance(out, (tuple, list)) else [out]
+                if any(isinstance(r, float) and math.isnan(r) for r in results):
+                    failures.append(f"{name}({arg}={value!r:.30}) returned NaN")
+    assert not failures, "\n".join(failures)
