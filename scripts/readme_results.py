@@ -28,7 +28,8 @@ def _table(lines: list[str], start: int) -> list[str]:
 
 def full_block(md: str) -> list[str]:
     lines = md.splitlines()
-    block = [lines[0], ""] + _table(lines, next(i for i, x in enumerate(lines) if x.startswith("| controller | seeds |")))
+    first = next(i for i, x in enumerate(lines) if x.startswith("| controller | seeds |"))
+    block = [lines[0], ""] + _table(lines, first)
     spread = [i for i, x in enumerate(lines) if x.startswith("Spread over training seeds")]
     if spread:
         block += ["", lines[spread[0]], ""] + _table(lines, spread[0] + 2)

@@ -47,6 +47,7 @@ FLAGS = {
 }
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(command=st.sampled_from(sorted(FLAGS)), data=st.data())
@@ -127,6 +128,7 @@ def damaged_configs(tmp_path, monkeypatch):
     tasks._load.cache_clear()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage", sorted(DAMAGE))
 @pytest.mark.parametrize("name", sorted(READERS))
 def test_a_damaged_config_file_is_named_in_one_line(name, damage, damaged_configs, capsys):

@@ -95,8 +95,10 @@ def test_a_shipped_name_loads_the_shipped_agent_whatever_lies_in_the_working_dir
     from millvib_env.control.factory import load_controller
 
     monkeypatch.chdir(tmp_path)
-    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", tmp_path / "ppo-gain-pf")  # e.g. train --save-dir ppo-gain-pf
-    (tmp_path / "ppo-gain-pf" / "card.json").write_text('{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "seed": 7}')
+    # e.g. from train --save-dir ppo-gain-pf
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", tmp_path / "ppo-gain-pf")
+    (tmp_path / "ppo-gain-pf" / "card.json").write_text(
+        '{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "seed": 7}')
     agent = load_controller("ppo-gain-pf")
     assert agent.shipped and agent.seed == 0
     assert not load_controller("./ppo-gain-pf").shipped  # a path is a path

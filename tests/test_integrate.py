@@ -15,6 +15,7 @@ def peak_error(a, b):
     return float(np.max(np.abs(a.x - b.x)) / np.max(np.abs(b.x)))
 
 
+@pytest.mark.slow
 def test_reference_agrees_with_an_independent_method_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
@@ -35,6 +36,7 @@ def test_fast_matches_reference_on_the_paper_cases(paper_cases):
         assert f.severity() == pytest.approx(r.severity(), rel=1e-3), label
 
 
+@pytest.mark.slow
 def test_fast_matches_reference_on_random_draws_including_unstable_ones(random_draws):
     params, gains = random_draws
     fast = simulate_batch(params, gains, T_CASES)

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 import millvib_env
 from millvib_env.cli import main as cli_main
 
-WEIRD = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12), st.floats(allow_nan=True, allow_infinity=True),
+WEIRD = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
+                  st.floats(allow_nan=True, allow_infinity=True),
                   st.text(max_size=8), st.lists(st.floats(allow_nan=True), max_size=3),
                   st.dictionaries(st.text(max_size=5), st.floats(), max_size=2))
 

@@ -33,6 +33,7 @@ def test_serial_and_threaded_kernels_give_the_same_episodes(monkeypatch):
     assert all(np.array_equal(a, b) for a, b in zip(serial, threaded))
 
 
+@pytest.mark.slow
 def test_fork_vector_env_steps_after_the_parent_used_threads_and_torch():
     code = textwrap.dedent("""
         import numpy as np, torch, gymnasium as gym, millvib_env

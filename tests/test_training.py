@@ -82,7 +82,7 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
     assert resumed["n_timesteps"] >= 512
 
 
-@pytest.mark.parametrize("backend", ["sb3", "sbx"])
+@pytest.mark.parametrize("backend", ["sb3", pytest.param("sbx", marks=pytest.mark.slow)])
 def test_a_new_sac_starts_at_the_zero_action(backend):
     # the relative action's zero is the base controller: a new agent starts from it in either backend
     from millvib_env.control.agents import algo_class

@@ -5,7 +5,7 @@ _numba_cache.configure()  # before any numba import: cache keyed by this package
 threads.passive_waiting()  # before numba's OpenMP pool starts: idle threads sleep, not spin
 
 # isort: split
-from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, load_preset
+from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, load_preset  # noqa: E402 (after the two calls)
 
 try:  # one home for the version: pyproject.toml, read from the installed package's metadata
     from importlib.metadata import PackageNotFoundError, version as _version

@@ -33,7 +33,8 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
     try:
         socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s).close()
     except OSError as err:
-        raise ValueError(f"--ray {address}: no Ray cluster answers there within {timeout_s:g} s ({err.strerror or err})") \
+        raise ValueError(f"--ray {address}: no Ray cluster answers there within {timeout_s:g} s "
+                         f"({err.strerror or err})") \
             from None
 
 
@@ -97,7 +98,7 @@ def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, proc
             return out
         with cf.ProcessPoolExecutor(max_workers=min(processes, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
             futures = [pool.submit(_call, fn, job) for job in jobs]
-            for f in cf.as_completed(futures):
+            for _done in cf.as_completed(futures):
                 if bar is not None:
                     bar.update(1)
             return [f.result() for f in futures]

@@ -7,10 +7,10 @@ vibration velocity, in mm/s, over 10-1000 Hz. It is "ISO-style": the standard me
 machine's bearing housings, we on the piston of the screw-down cylinder, so the zones
 (configs/severity.yaml, with the machine group and support they assume) grade the number as a
 plant engineer would read it, not as a certification. `band_levels` also gives the level of the
-pump line (the pulsation frequency and its harmonics) and of the 10-100 Hz band. An acceleration signal is integrated in the frequency domain (its spectrum divided
-by j*omega) and every bin outside the band is zeroed: the low-frequency cut removes the drift
-that time-domain integration accumulates, the high cut removes hiss. The RMS then follows from
-Parseval's theorem over the retained bins.
+pump line (the pulsation frequency and its harmonics) and of the 10-100 Hz band. An acceleration
+signal is integrated in the frequency domain (its spectrum divided by j*omega) and every bin outside
+the band is zeroed: the low-frequency cut removes the drift that time-domain integration accumulates,
+the high cut removes hiss. The RMS then follows from Parseval's theorem over the retained bins.
 
 A record that is not periodic in its window (a transient, a slow drift) would leak energy into
 the band through the jump between its ends. We remove that jump without a taper window (a

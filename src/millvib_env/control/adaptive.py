@@ -2,8 +2,8 @@
 
 What it measures is what a mill's data acquisition records, sampled at 10 kHz: piston position,
 velocity and acceleration, chamber and supply pressure, the servo-amplifier command and the
-rolling force from the stand's load cells (``info["signals"]`` of the environments). What it knows is the plant's data sheet, Table 1, for
-everything but the two parameters that drift: the damping c1 and the leakage Ct.
+rolling force from the stand's load cells (``info["signals"]`` of the environments). What it knows
+is the plant's data sheet, Table 1, for everything but the two parameters that drift: the damping c1 and the leakage Ct.
 
 Estimation, once per decision period, by least squares with exponential forgetting (recursive
 least squares in information form: the information matrix and vector decay by

@@ -40,7 +40,8 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
     if not path.suffix:
         path = config_dir() / "env" / f"{name}.yaml"
     if not path.is_file():
-        raise ValueError(f"environment config {str(name)!r} not found (no file {path}); available: {list_env_configs()} "
+        raise ValueError(f"environment config {str(name)!r} not found (no file {path}); available: "
+                         f"{list_env_configs()} "
                          "or a path to a .yaml file")
     if path.resolve() in _seen:
         raise ValueError(f"environment config {path}: 'inherit' forms a cycle")
@@ -404,6 +405,20 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
     missing = sorted(_TOP_KEYS - set(data))
     if missing:
         raise ValueError(f"env config is missing key(s) {missing}")
+    _check_timing(data)
+    for key, check in _SECTIONS.items():
+        check(key, data[key])
+    if data["actions"].get("scale", "log") == "log":
+        for key in ("kp", "ki", "kd", "kpl", "kff"):
+            if data["actions"][key][0] <= 0:
+                _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
+                      "(or actions.scale: linear)")
+    base = _base_params(data["plant"])
+    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base))
+
+
+def _check_timing(data: dict) -> None:
+    """episode_s, the control and decision periods and the sample rate, each checked and consistent."""
     # an episode shorter than one period of the severity band's low edge (0.1 s for 10 Hz) has no severity
     _number("episode_s", data["episode_s"], lo=MIN_EPISODE_S, hi=MAX_EPISODE_S)
     for key in ("control_dt_s", "decision_dt_s"):
@@ -421,14 +436,10 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
     if data["episode_s"] < data["decision_dt_s"]:
         raise ValueError(f"env config episode_s = {data['episode_s']} is shorter than one decision period "
                          f"({data['decision_dt_s']} s)")
-    for key, check in _SECTIONS.items():
-        check(key, data[key])
-    if data["actions"].get("scale", "log") == "log":
-        for key in ("kp", "ki", "kd", "kpl", "kff"):
-            if data["actions"][key][0] <= 0:
-                _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
-                      "(or actions.scale: linear)")
-    plant = data["plant"]
+
+
+def _base_params(plant: Any) -> MillParams:
+    """The config's plant: a preset name or a mapping of MillParams fields."""
     try:
         if isinstance(plant, str):
             base = load_preset(plant)
@@ -438,4 +449,4 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
             raise ValueError(f"must be a preset name or a mapping of MillParams fields, not {plant!r}")
     except ValueError as err:
         raise ValueError(f"env config plant: {err}") from None
-    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base))
+    return base

@@ -50,7 +50,7 @@ def _write_sample(t, y0, f0, y1, f1, h, tk, p, c, ys, auxs, k, work, aux, with_a
 
 
 @njit(cache=True)
-def advance(t, t1, y, f, h, p, c, rtol, atol, p_max, max_steps,
+def advance(t, t1, y, f, h, p, c, rtol, atol, p_max, max_steps,  # noqa: C901 (one compiled step loop)
             t_base, dt_s, k, ys, auxs, with_aux):
     """Integrate y from t to t1 with the drive c held constant.
 

@@ -119,6 +119,25 @@ def _run(ctrl: Controller, seeds, env_id: str, task: str, env_kwargs: dict | Non
 CHUNK = 50
 
 
+def _load_units(names: list[str], task: str, all_seeds: bool) -> tuple[list[tuple[str, int | None]], dict]:
+    """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
+    every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
+    from millvib_env.control.agents import agent_seeds
+
+    units: list[tuple[str, int | None]] = []
+    loaded: dict[tuple, Controller] = {}
+    for n in names:
+        first = load_controller(n, task)
+        if getattr(first, "card", None) is not None:
+            for s in (agent_seeds(n) if all_seeds else [first.seed]):
+                units.append((n, s))
+                loaded[(n, s)] = first if s == first.seed else load_controller(n, task, seed=s)
+        else:
+            units.append((n, None))
+            loaded[(n, None)] = first
+    return units, loaded
+
+
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_id: str = "MillVib-GainSchedule-v0",
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
@@ -132,7 +151,6 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     local run's. Every controller is compared on the same plants with `reference` (default
     `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
     `controllers` leaves it out) and with pid-robust."""
-    from millvib_env.control.agents import agent_seeds
     from millvib_env.control.policies import REFERENCE
 
     t = get_task(task)
@@ -147,20 +165,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if reference not in names:
         load_controller(reference, t.name)  # an unknown name fails here, in one line, before any run
         names = [reference] + names
-    units: list[tuple[str, int | None]] = []
-    loaded: dict[tuple, Controller] = {}
-    for n in names:
-        first = load_controller(n, t.name)
-        if getattr(first, "card", None) is not None:
-            if first.task != t.name:
-                raise ValueError(f"agent {n!r} was trained on task {first.task!r}, not {t.name!r}: benchmark it "
-                                 f"with --task {first.task}")
-            for s in (agent_seeds(n) if all_seeds else [first.seed]):
-                units.append((n, s))
-                loaded[(n, s)] = first if s == first.seed else load_controller(n, t.name, seed=s)
-        else:
-            units.append((n, None))
-            loaded[(n, None)] = first
+    units, loaded = _load_units(names, t.name, all_seeds)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
@@ -327,7 +332,8 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
 def _write_files(result: dict, out: Path) -> list[Path]:
     files = []
     buf = io.StringIO()
-    fields = ["controller", "agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
+    fields = ["controller", "agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s",
+              "severity_start_mm_s",
               "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
               "cost", "episode_return", "c1_log_error", "ct_log_error"]
     writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")

@@ -25,7 +25,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                         "ADDRESS (e.g. auto, ray://head:10001); needs pip install -e '.[ray]'")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
     p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
-    p.add_argument("--log-dir", default="runs", help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed>")
+    p.add_argument("--log-dir", default="runs",
+                   help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed> "
+                        "(LOG_DIR/<algo>_<env>_<task>_s<seed> on rolling and change)")
     p.add_argument("--save-dir", help="where the final model, VecNormalize stats and model card go "
                                       "(default: the run folder)")
     p.add_argument("--resume", action="store_true",
@@ -50,10 +52,11 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="task: startup (the paper's 1 mm start), rolling (steady rolling) or change (the plant "
                         "changes mid-episode); configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
-                   help="controllers to evaluate: pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
-                        "lqr-oracle, agent names (folders under agents/, e.g. ppo-gain; verified against agents/MANIFEST.sha256) or "
-                        "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip (default: every "
-                        "baseline and every shipped agent trained on the task)")
+                   help="controllers to evaluate: baselines (pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
+                        "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle), shipped agent names (folders under "
+                        "agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or paths to agent "
+                        "folders, which are trusted code: SB3 unpickles parts of model.zip (default: every baseline "
+                        "and every shipped agent trained on the task)")
     p.add_argument("--env", default="MillVib-GainSchedule-v0",
                    help="environment id the plants are drawn from (default MillVib-GainSchedule-v0)")
     p.add_argument("--episodes", type=int, default=None,

@@ -81,7 +81,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
                               "severity_mm_s": sev, "tracking_rms_um": trk,
                               "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),
                               "cost": episode_cost(sev, trk, scales) if math.isfinite(sev) else math.inf,
-                              "severity_start_mm_s": info["severity_start"], "severity_rest_mm_s": info["severity_rest"],
+                              "severity_start_mm_s": info["severity_start"],
+                              "severity_rest_mm_s": info["severity_rest"],
                               "pump_line_mm_s": info["pump_line_mm_s"], "low_band_mm_s": info["low_band_mm_s"],
                               "episode_return": float(info["episode_return"]), "steps": int(info["episode_steps"]),
                               **controller.episode_extras(i)}

@@ -140,7 +140,8 @@ def sweep_from_cli(args) -> int:
 
     s = result["summary"]
     ranges = ", ".join(f"{p} {lo:g}-{hi:g} ({kind})" for p, (kind, lo, hi) in s["ranges"].items())
-    title = (f"Sweep on task {s['task']}: {s['plants']} plants, episode seeds {s['seed']}-{s['seed'] + s['plants'] - 1} of "
+    last = s['seed'] + s['plants'] - 1
+    title = (f"Sweep on task {s['task']}: {s['plants']} plants, episode seeds {s['seed']}-{last} of "
              f"its held-out range, with {ranges}. Cost = severity / {COST_SCALES['severity_mm_s']} mm/s + tracking "
              f"RMS / {COST_SCALES['tracking_um']} um; [95 % bootstrap intervals]")
     print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"], "title": title,

@@ -277,12 +277,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     else:
         if norm_kwargs is not None:
             venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
-        try:
-            model = cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
-        except (TypeError, ValueError, AssertionError, KeyError) as err:  # a key or value SB3 refuses
-            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise ValueError(f"hyperparameters for {algo} on {env_id} ({config or 'the default file'}) are not "
-                             f"accepted by {cls.__name__}: {first}") from None
+        model = _new_model(cls, policy, venv, seed, run, hp, f"{algo} on {env_id} ({config or 'the default file'})")
         if _zero_action_is_a_controller(env_id, env_kwargs):
             start_at_zero_action(model)
         done_steps = 0
@@ -305,24 +300,12 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
-    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
-
-    if isinstance(venv, VecNormalize):
-        venv.save(str(run / "vecnormalize.pkl"))
-    selected = None
-    if select == "best" and (run / "best" / "best_model.zip").is_file():
-        shutil.copyfile(run / "best" / "best_model.zip", run / "model.zip")
-        if isinstance(venv, VecNormalize):
-            shutil.copyfile(run / "best" / STATS_FILE, run / STATS_FILE)
-        selected = {"timesteps": int(eval_cb.best_timesteps), "mean_reward": float(eval_cb.best_mean_reward)}
-    else:
-        model.save(run / "model.zip")
-        if isinstance(venv, VecNormalize):
-            save_obs_stats(venv, run / STATS_FILE)
+    selected = _keep_policy(run, model, venv, eval_cb, select)
     evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
-            "task": the_task.name, "backend": backend, "env_kwargs": env_kwargs, "seed": seed, "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
+            "task": the_task.name, "backend": backend, "env_kwargs": env_kwargs, "seed": seed,
+            "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
             "wall_time_s": round(wall, 1), "command": command or f"millvib train --algo {algo} --env {env_id} "
                                                                   f"--task {the_task.name} --seed {seed}",
             "hyperparameters": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else repr(v))
@@ -337,21 +320,54 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     card["validation"] = validation_result(run, card)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
-    if save_dir:  # model, statistics and card replace the folder's as a whole
-        from millvib_env._paths import atomic_folder
-
-        dest = Path(save_dir)
-        from millvib_env.control.agents import SEED_FOLDER
-
-        card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
-        with atomic_folder(dest) as tmp:
-            for src in (run / "model.zip", run / "vecnormalize.npz", run / "eval" / EVAL_CURVE):
-                if src.exists():
-                    shutil.copyfile(src, tmp / src.name)
-            write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
+    if save_dir:
+        _save_agent(Path(save_dir), run, card)
     venv.close()
     eval_env.close()
     return card
+
+
+def _new_model(cls, policy, venv, seed: int, run: Path, hp: dict, what: str):
+    """A new learner; hyperparameters the learner refuses are a ValueError of one line."""
+    try:
+        return cls(policy, venv, seed=seed, device="cpu", tensorboard_log=str(run / "tb"), verbose=0, **hp)
+    except (TypeError, ValueError, AssertionError, KeyError) as err:  # a key or value SB3 refuses
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"hyperparameters for {what} are not accepted by {cls.__name__}: {first}") from None
+
+
+def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
+    """Write the shipped policy and its observation statistics into the run folder: the final one, or
+    (`select` "best") the best evaluated one; returns what was selected, or None for the final one."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
+
+    normalized = isinstance(venv, VecNormalize)
+    if normalized:
+        venv.save(str(run / "vecnormalize.pkl"))
+    if select == "best" and (run / "best" / "best_model.zip").is_file():
+        shutil.copyfile(run / "best" / "best_model.zip", run / "model.zip")
+        if normalized:
+            shutil.copyfile(run / "best" / STATS_FILE, run / STATS_FILE)
+        return {"timesteps": int(eval_cb.best_timesteps), "mean_reward": float(eval_cb.best_mean_reward)}
+    model.save(run / "model.zip")
+    if normalized:
+        save_obs_stats(venv, run / STATS_FILE)
+    return None
+
+
+def _save_agent(dest: Path, run: Path, card: dict) -> None:
+    """The agent folder `dest` (--save-dir): model, statistics, curve and card, replaced as a whole."""
+    from millvib_env._paths import atomic_folder
+    from millvib_env.control.agents import SEED_FOLDER
+
+    card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
+    with atomic_folder(dest) as tmp:
+        for src in (run / "model.zip", run / "vecnormalize.npz", run / "eval" / EVAL_CURVE):
+            if src.exists():
+                shutil.copyfile(src, tmp / src.name)
+        write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
 
 
 def validation_result(folder: str | Path, card: dict | None = None) -> dict:

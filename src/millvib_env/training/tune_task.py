@@ -81,13 +81,28 @@ def _pf_starts(task: Task, seeds: list[int]) -> np.ndarray:
     return np.concatenate(starts)
 
 
+def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trials: int, say) -> dict[str, Any]:
+    """pid-nominal and pid-robust (those in `todo`) tuned by Optuna studies in `storage`."""
+    from millvib_env.training.tuning import tune_optuna
+
+    out: dict[str, Any] = {}
+    for name, s, pinned in (("pid-nominal", seeds["nominal"], NOMINAL_PLANT), ("pid-robust", seeds["robust"], None)):
+        if name in todo:
+            say(f"tuning {name} with Optuna ({storage}) ...")
+            res = tune_optuna(s, task=t.name, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
+                              params=pinned)
+            out[name] = {**res, "seeds": [s[0], s[-1]],
+                         "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
+    return out
+
+
 def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
               progress: bool = True) -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config)."""
-    from millvib_env.training.tuning import tune, tune_adaptive, tune_from, tune_lqr, tune_optuna
+    from millvib_env.training.tuning import tune, tune_adaptive, tune_from, tune_lqr
 
     t = get_task(task)
     seeds = tuning_seeds(t)
@@ -107,14 +122,8 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         return entry
 
     if optuna:
-        for name, s, pinned in (("pid-nominal", seeds["nominal"], NOMINAL_PLANT), ("pid-robust", seeds["robust"], None)):
-            if name in todo:
-                say(f"tuning {name} with Optuna ({optuna}) ...")
-                res = tune_optuna(s, task=t.name, storage=optuna, study_name=f"{t.name}-{name}", n_trials=trials,
-                                  params=pinned)
-                out[name] = {**res, "seeds": [s[0], s[-1]],
-                             "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
-                todo.remove(name)
+        out.update(_tune_with_optuna(t, seeds, todo, optuna, trials, say))
+        todo = [n for n in todo if n not in out]
     if "pid-nominal" in todo:
         say("tuning pid-nominal on the nominal plant ...")
         res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT)
@@ -125,11 +134,10 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         res = tune(seeds["robust"], task=t.name)
         out["pid-robust"] = _gain_entry(res, seeds["robust"], "one set of gains minimising the mean cost over 32 "
                                                               "plants of the task")
-    if from_task:
-        for name in ("pid-oracle", "lqr-oracle", "pid-pf-oracle"):
-            if name in todo:
-                out[name] = {"from_task": get_task(from_task).name}
-                todo.remove(name)
+    if from_task:  # the oracles' tables, shared with another task
+        out.update({name: {"from_task": get_task(from_task).name}
+                    for name in ("pid-oracle", "lqr-oracle", "pid-pf-oracle") if name in todo})
+        todo = [n for n in todo if n not in out]
     if "pid-oracle" in todo:
         out["pid-oracle"] = _tuned_table(t, grid, "pid-oracle", seeds["oracle"], progress, (
             "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
