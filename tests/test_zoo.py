@@ -25,3 +25,25 @@ def test_the_zoo_trains_on_our_env_with_our_file(tmp_path, algo, file, small, en
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert run.returncode == 0, run.stderr[-3000:]
     assert list(tmp_path.glob(f"{algo}/{env}_*/{env}.zip"))
+
+
+def test_the_documented_task_recipe_keeps_the_files_training_reward(tmp_path):
+    # the zoo's --env-kwargs replaces a file's env_kwargs: the recipe (docs/scaling.md) restates them
+    import yaml
+
+    class ZooLoader(yaml.SafeLoader):  # the zoo saves an OrderedDict as a tagged list of pairs: read as data
+        pass
+
+    ZooLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
+                              lambda loader, node: dict(loader.construct_sequence(node.value[0], deep=True)))
+
+    cmd = [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", G, "--gym-packages", "millvib_env",
+           "--conf-file", str(config_dir() / "agents" / "ppo.yml"), "-n", "128", "--eval-freq", "-1",
+           "--log-folder", str(tmp_path), "--seed", "0", "--hyperparams", "n_envs:2", "n_steps:64", "batch_size:64",
+           "n_epochs:1", "--env-kwargs", "config:'rolling'", "reward:dict(w_vibration=2.0)"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-3000:]
+    saved = yaml.load(next(tmp_path.glob(f"ppo/{G}_*/{G}/config.yml")).read_text(), Loader=ZooLoader)
+    env_kwargs = saved["env_kwargs"]
+    file_kwargs = yaml.safe_load((config_dir() / "agents" / "ppo.yml").read_text())[G]["env_kwargs"]
+    assert env_kwargs == {"config": "rolling", **file_kwargs}
