@@ -14,8 +14,8 @@ from millvib_env._yaml import load_yaml
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller, GainTable
 from millvib_env.control.policies import BASELINES, FixedGainPolicy, LQRPolicy, OraclePolicy, baseline_names
-from millvib_env.envs.actions import GainMap
-from millvib_env.envs.config import EnvConfig, load_env_config
+from millvib_env.envs.actions import GainMap, task_gain_map
+from millvib_env.envs.config import EnvConfig, task_config
 from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
@@ -80,7 +80,7 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
                              f"run it with task {agent.task!r}")
         return agent
     task = get_task(task if task is not None else "startup").name
-    gain_map = GainMap.from_config(config or load_env_config(get_task(task).config))
+    gain_map = GainMap.from_config(config) if config is not None else task_gain_map(task)
     ctrl: Controller
     if name == "pid-paper":
         ctrl = FixedGainPolicy(name, PAPER_GAINS, gain_map, BASELINES[name])
@@ -93,12 +93,12 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
         from millvib_env.control.lqr import LQRWeights
 
         entry = control_entry(task, name)
-        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), load_env_config(get_task(task).config).base_params, task)
+        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), task_config(task).base_params, task)
     elif name == "pid-adaptive":
         from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
         entry = control_entry(task, name)
-        cfg = config or load_env_config(get_task(task).config)
+        cfg = config or task_config(task)
         ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]), cfg.base_params,
                               sample_rate_hz=cfg.sample_rate_hz)
     ctrl.task = task

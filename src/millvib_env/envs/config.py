@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -450,3 +451,19 @@ def _base_params(plant: Any) -> MillParams:
     except ValueError as err:
         raise ValueError(f"env config plant: {err}") from None
     return base
+
+
+def task_config(task: Any) -> EnvConfig:
+    """The environment config of a task (a name or a `tasks.Task`), read and validated once per
+    process and configs folder: every caller that needs a task's plant, periods or gain bounds shares
+    it (an EnvConfig is frozen; its sections are read, never written)."""
+    from millvib_env.tasks import Task, get_task
+
+    t = task if isinstance(task, Task) else get_task(task)
+    return _task_config(str(config_dir()), t.config)
+
+
+@lru_cache(maxsize=None)
+def _task_config(root: str, name: str) -> EnvConfig:
+    return load_env_config(name)
+

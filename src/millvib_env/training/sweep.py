@@ -33,9 +33,9 @@ CHUNK = 64
 
 
 def _randomize(task: str, params: Sequence[str]) -> dict:
-    from millvib_env.envs.config import load_env_config
+    from millvib_env.envs.config import task_config
 
-    cfg = load_env_config(get_task(task).config)
+    cfg = task_config(task)
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:
         if name not in RANGES:

@@ -200,18 +200,18 @@ def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool
 
 
 def _area(t: Task) -> float:
-    from millvib_env.envs.config import load_env_config
+    from millvib_env.envs.config import task_config
 
-    return float(load_env_config(t.config).base_params.Ap)
+    return float(task_config(t).base_params.Ap)
 
 
 def _oracle_grid(t: Task, n: int):
     """The oracle tables' grid: n x n over the paper's (log c1, log Ct) ranges (the startup task's
     draw), whatever the task: a table is a property of plants, and the `change` task's plants move
     over the whole range."""
-    from millvib_env.envs.config import load_env_config
+    from millvib_env.envs.config import task_config
 
-    dists = {d.name: d for d in load_env_config(get_task("startup").config).randomize}
+    dists = {d.name: d for d in task_config("startup").randomize}
     c1_grid = np.geomspace(dists["c1"].low, dists["c1"].high, n)
     ct_grid = np.geomspace(dists["Ct"].low, dists["Ct"].high, n)
     return c1_grid, ct_grid, [(i, j) for i in range(n) for j in range(n)]
