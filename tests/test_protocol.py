@@ -159,3 +159,15 @@ def test_a_benchmark_of_baselines_never_imports_torch(tmp_path):
     run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "b.json")], capture_output=True, text=True,
                          timeout=300)
     assert run.stdout.strip().splitlines()[-1] == "0 False False", run.stdout + run.stderr
+
+
+def test_episode_records_and_the_csv_columns_have_one_home():
+    from millvib_env.control import load_controller
+    from millvib_env.training.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes
+    from millvib_env.training.sweep import RANGES
+
+    assert set(CSV_FIELDS) <= set(RECORD_FIELDS)
+    for name in ("pid-robust", "pid-adaptive"):  # the adaptive PID adds its estimator's errors
+        rec = run_episodes(load_controller(name), [20000])[0]
+        assert set(rec) <= set(RECORD_FIELDS), set(rec) - set(RECORD_FIELDS)
+    assert set(RANGES) <= set(RECORD_FIELDS)  # a sweep's drawn parameters are record columns

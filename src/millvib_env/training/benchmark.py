@@ -33,7 +33,7 @@ from millvib_env.control.factory import load_controller
 from millvib_env.control.policies import baseline_names
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import COST_SCALES, run_episodes, trace_episode
+from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, run_episodes, trace_episode
 from millvib_env.training.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES",
@@ -332,11 +332,7 @@ def _write_outputs(result: dict, out: Path) -> list[Path]:
 def _write_files(result: dict, out: Path) -> list[Path]:
     files = []
     buf = io.StringIO()
-    fields = ["controller", "agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s",
-              "severity_start_mm_s",
-              "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
-              "cost", "episode_return", "c1_log_error", "ct_log_error"]
-    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer = csv.DictWriter(buf, fieldnames=["controller", *CSV_FIELDS], extrasaction="ignore")
     writer.writeheader()
     for name, recs in result["records"].items():
         for r in recs:

@@ -9,7 +9,7 @@ environment's first episode is recorded.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Sequence, TypedDict
 
 import numpy as np
 
@@ -17,7 +17,43 @@ from millvib_env._checks import instance, integer, integers, real
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 
-__all__ = ["run_episodes", "episode_cost", "COST_SCALES"]
+__all__ = ["run_episodes", "episode_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS", "CSV_FIELDS"]
+
+
+class EpisodeRecord(TypedDict, total=False):
+    """One episode as `run_episodes` records it: the one home of its keys, which the statistics
+    (`benchmark.summarize`), the benchmark's and the sweep's CSVs read."""
+
+    seed: int                   # the episode seed: the plant, its disturbances and start
+    scenario: str | None        # a named scenario, or None for a drawn plant
+    c1: float                   # the plant at the episode's start (N s/m, m^3/(s Pa)), ...
+    Ct: float
+    beta_e: float
+    mt: float
+    FL: float
+    c1_end: float               # ... and at its end (the `change` task moves them)
+    Ct_end: float
+    severity_mm_s: float        # vibration severity over the episode (ISO-style band RMS)
+    tracking_rms_um: float
+    iso_zone: str
+    diverged: bool
+    cost: float                 # `episode_cost`, inf for a diverged episode
+    severity_start_mm_s: float
+    severity_rest_mm_s: float
+    pump_line_mm_s: float
+    low_band_mm_s: float
+    episode_return: float
+    steps: int
+    agent_seed: int | None      # set by the benchmark: the agent's training seed
+    c1_log_error: float         # pid-adaptive only (`Controller.episode_extras`): its estimate's error
+    ct_log_error: float
+
+
+RECORD_FIELDS = tuple(EpisodeRecord.__annotations__)
+#: the columns of the benchmark's episodes.csv (after "controller"), in order
+CSV_FIELDS = ("agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
+              "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
+              "cost", "episode_return", "c1_log_error", "ct_log_error")
 
 #: the benchmark's cost: severity / 4.5 mm/s + tracking RMS / 10 um (ISO B/C boundary; 10 um gauge)
 COST_SCALES = {"severity_mm_s": 4.5, "tracking_um": 10.0}
@@ -41,7 +77,7 @@ def env_kwargs_for(controller: Controller, task: str | None = None, env_kwargs: 
 
 def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,
                  env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
-                 progress: bool = False, desc: str = "", task: str | None = None) -> list[dict]:
+                 progress: bool = False, desc: str = "", task: str | None = None) -> list[EpisodeRecord]:
     """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
 
     `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
@@ -56,7 +92,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     venv.core.record_signals = controller.needs_signals
     obs = venv.reset(seeds, {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, range(n))
-    records: list[dict | None] = [None] * n
+    records: list[EpisodeRecord | None] = [None] * n
     first_params = [dict(info["params"]) for info in venv.reset_infos]
     state = None
     episode_start = np.ones(n, dtype=bool)

@@ -85,7 +85,7 @@ def write_sweep(result: dict, out: str | Path) -> list[Path]:
     with atomic_folder(out, command="sweep") as tmp:
         buf = io.StringIO()
         fields = ["controller", "seed", *dict.fromkeys(["c1", "Ct", *params]), "cost", "severity_mm_s",
-                  "tracking_rms_um", "diverged"]
+                  "tracking_rms_um", "diverged"]  # record keys (evaluate.EpisodeRecord) and drawn parameters
         writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         for name, recs in result["records"].items():
