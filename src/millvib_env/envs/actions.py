@@ -68,7 +68,7 @@ class GainMap:
     def from_config(cls, config: EnvConfig, pressure_feedback: bool | None = None) -> "GainMap":
         acts = config["actions"]
         pf = config.pressure_feedback if pressure_feedback is None else pressure_feedback
-        names = gain_names(pf, bool(acts.get("force_feedforward", False)))
+        names = gain_names(pf, config.force_feedforward)
         lo = np.array([acts[k][0] for k in names], float)
         hi = np.array([acts[k][1] for k in names], float)
         rel = acts.get("relative")
@@ -87,7 +87,7 @@ class GainMap:
                 raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: a gain with a "
                                  "log offset (decades > 0) needs a base > 0")
             return cls(names, lo, hi, True, base, decades)
-        return cls(names, lo, hi, acts.get("scale", "log") == "log")
+        return cls(names, lo, hi, config.log_scaled_gains)
 
     @property
     def relative(self) -> bool:

@@ -87,6 +87,15 @@ class Distribution:
 
 
 @dataclass(frozen=True)
+class ObservationSettings:
+    """The config's `observation` section, typed, with its defaults in one place."""
+
+    params: bool = False  # the true c1 and Ct (privileged)
+    phase: bool = False   # the pump's phase
+    force: bool = False   # the load cells' force
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     """Validated environment configuration (see configs/env/startup.yaml for every key)."""
 
@@ -114,12 +123,21 @@ class EnvConfig:
         return float(self.raw["sample_rate_hz"])
 
     @property
+    def observation(self) -> ObservationSettings:
+        return ObservationSettings(**self.raw["observation"])
+
+    @property
     def pressure_feedback(self) -> bool:
         return bool(self.raw["actions"].get("pressure_feedback", False))
 
     @property
     def force_feedforward(self) -> bool:
         return bool(self.raw["actions"].get("force_feedforward", False))
+
+    @property
+    def log_scaled_gains(self) -> bool:
+        """The gain action's scale: log (the default) or linear (`actions.scale`)."""
+        return self.raw["actions"].get("scale", "log") == "log"
 
 
 # --- the schema --------------------------------------------------------------------------------

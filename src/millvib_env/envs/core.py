@@ -65,9 +65,10 @@ class MillVibCore:
                 raise ValueError(f"{name} = {flag!r} is invalid: must be True or False")
         self.n, self.mode, self.cfg, self.residual = int(n), mode, config, bool(residual and mode == "valve")
         raw = config.raw
-        observe_params = raw["observation"].get("params", False) if observe_params is None else observe_params
-        observe_phase = raw["observation"].get("phase", False) if observe_phase is None else observe_phase
-        self.observe_force = bool(raw["observation"].get("force", False))
+        seen = config.observation
+        observe_params = seen.params if observe_params is None else observe_params
+        observe_phase = seen.phase if observe_phase is None else observe_phase
+        self.observe_force = seen.force
         self.period_s = config.decision_dt_s if mode == "gain" else config.control_dt_s
         self.n_sub = int(round(self.period_s / config.control_dt_s))
         self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
