@@ -22,13 +22,14 @@ CONFIG = {"sac": "configs/agents/pf/sac.yml", "ppo": "configs/agents/pf/ppo.yml"
 RUN = """
 import sys, time
 algo, backend, config, steps = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
-from millvib_env.training.train import _algo_class, jit_noise_key_split, resolve_named_gains
+from millvib_env.control.agents import algo_class
+from millvib_env.training.train import jit_noise_key_split, resolve_named_gains
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.envs.vec_env import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 import torch
 torch.set_num_threads(1)
-cls = _algo_class(algo, backend)
+cls = algo_class(algo, backend)
 hp = load_hyperparams(algo, "MillVib-GainSchedule-v0", config)
 n_envs = hp.pop("n_envs"); hp.pop("n_timesteps"); policy = hp.pop("policy"); hp.pop("normalize")
 env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), "startup")

@@ -60,7 +60,14 @@ def severity_band() -> tuple[float, float]:
     return _load_severity_config()["band"]
 
 
-def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | None, quantity: str) -> np.ndarray:
+def _resolved_band(band: tuple[float, float] | None, name: str = "band") -> tuple[float, float]:
+    """`band` checked, or the configured severity band where it is None."""
+    return checked_band(name, band) or severity_band()
+
+
+def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | None, quantity: str,
+                  band_name: str = "band") -> tuple[np.ndarray, tuple[float, float]]:
+    """The record as a float array and the band it is measured in, both checked against each other."""
     if isinstance(fs, bool) or not isinstance(fs, (int, float, np.integer, np.floating)) or not math.isfinite(fs) \
             or fs <= 0:
         raise ValueError(f"fs = {fs!r} is invalid: the sampling rate in Hz, a finite number > 0")
@@ -75,9 +82,7 @@ def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | Non
         raise ValueError(f"signal has {x.size} samples; at least 8 are needed")
     if not np.all(np.isfinite(x)):
         raise ValueError("signal contains NaN or inf (a diverged simulation has no severity)")
-    if not (math.isfinite(fs) and fs > 0):
-        raise ValueError(f"fs = {fs!r} Hz is invalid: must be finite and > 0")
-    lo, hi = checked_band("band", band) or severity_band()
+    lo, hi = _resolved_band(band, band_name)
     if hi > fs / 2:
         raise ValueError(f"band upper edge {hi} Hz is above the Nyquist frequency {fs / 2} Hz (fs = {fs} Hz)")
     duration = x.size / fs
@@ -87,7 +92,7 @@ def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | Non
     if hi - lo < 1.0 / duration:
         raise ValueError(f"band = {band!r} Hz is narrower than the record's frequency resolution allows: a "
                          f"{duration:.4g} s record needs a band at least {1.0 / duration:.4g} Hz wide")
-    return x
+    return x, (lo, hi)
 
 
 def _smooth_extension(x: np.ndarray, fs: float, quantity: str) -> np.ndarray:
@@ -115,8 +120,7 @@ def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity 
     Returns (frequencies Hz, V_k); bins outside the band are zero. Acceleration is divided by
     j*omega, displacement multiplied by it.
     """
-    x = _check_signal(signal, fs, band, quantity)
-    band = severity_band() if band is None else checked_band("band", band)
+    x, band = _check_signal(signal, fs, band, quantity)
     ext = _smooth_extension(x, fs, quantity)
     spec = sfft.rfft(ext)
     freqs = sfft.rfftfreq(ext.size, d=1.0 / fs)
@@ -167,10 +171,10 @@ def band_levels(signal: np.ndarray, fs: float, *, quantity: Quantity = "accelera
     only if line_hz < 100 Hz).
     """
     freqs, vel = band_velocity_spectrum(signal, fs, quantity=quantity, band=band)
-    band = severity_band() if band is None else checked_band("band", band)
+    band = _resolved_band(band)
     if low_band is None:
         raise ValueError("low_band = None is invalid: a (low, high) pair in Hz with 0 <= low < high")
-    low_band = checked_band("low_band", low_band)
+    _, low_band = _check_signal(signal, fs, low_band, quantity, "low_band")
     line_hz = real("line_hz", line_hz, lo=0.0)
     n = 2 * len(signal)
     resolution = fs / n
@@ -179,7 +183,6 @@ def band_levels(signal: np.ndarray, fs: float, *, quantity: Quantity = "accelera
     line_width_hz = real("line_width_hz", line_width_hz, lo=0.0, lo_open=True)
     if line_width_hz < resolution:
         raise ValueError(f"line_width_hz = {line_width_hz} Hz is below the record's resolution {resolution:.3g} Hz")
-    _check_signal(signal, fs, low_band, quantity)
     harmonics = np.arange(1, int(band[1] // line_hz) + 1) * line_hz if line_hz > 0 else np.array([])
     on_line = np.zeros(freqs.size, dtype=bool)
     for f in harmonics:

@@ -48,7 +48,7 @@ XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_thread
 def one_xla_thread() -> None:
     """Run JAX's CPU computations on one thread (``XLA_FLAGS``), unless the user set XLA flags: a
     learner's networks are small, and two trainings share a 2-core machine. Takes effect only before
-    JAX's first computation, so `millvib train --backend sbx` calls it before importing sbx."""
+    JAX's first computation, so `control.agents.algo_class` calls it before importing sbx."""
     os.environ.setdefault("XLA_FLAGS", XLA_ONE_THREAD)
 
 

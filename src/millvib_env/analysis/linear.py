@@ -137,10 +137,11 @@ def _numerical_jacobian(f, y0: np.ndarray, scale: np.ndarray, friction: str) -> 
     return J
 
 
-def _check_plant(params, gains=False) -> None:
+def _check_plant(params, *gains) -> None:
+    """`params` a MillParams and, where given, `gains` a PIDGains."""
     instance("params", params, MillParams, "a MillParams")
-    if gains is not False:
-        instance("gains", gains, PIDGains, "a PIDGains")
+    for g in gains:
+        instance("gains", g, PIDGains, "a PIDGains")
 
 
 def _check_xd(params: MillParams, xd) -> float:
@@ -234,7 +235,6 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
                       integral: str = "frozen") -> float:
     """Largest real part of the loop's eigenvalues (1/s): < 0 stable, > 0 unstable."""
-    _check_plant(params, gains)
     op = operating_point(params, gains, xd, friction=friction, integral=integral)
     return float(np.max(np.linalg.eigvals(jacobian(params, gains, op)).real))
 

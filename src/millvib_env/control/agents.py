@@ -36,6 +36,9 @@ def algo_class(algo: str, backend: str = "sb3"):
     if algo not in BACKENDS[backend]:
         raise ValueError(f"algo = {algo!r} is invalid for backend {backend!r}: one of {BACKENDS[backend]}")
     if backend == "sbx":
+        from millvib_env.threads import one_xla_thread
+
+        one_xla_thread()  # before JAX starts (training or loading): its thread pool would take every core
         try:
             import sbx
         except ImportError:

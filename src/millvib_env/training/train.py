@@ -38,16 +38,6 @@ AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURV
 N_VALIDATION = 40
 
 
-def _algo_class(algo: str, backend: str = "sb3"):
-    from millvib_env.control.agents import algo_class
-
-    if backend == "sbx":
-        from millvib_env.threads import one_xla_thread
-
-        one_xla_thread()  # before JAX starts: its thread pool would take every core
-    return algo_class(algo, backend)
-
-
 def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
     """`env_kwargs` with gain sets named by a baseline (``residual_gains: pid-pf-robust``,
     ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task`
@@ -251,7 +241,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     from millvib_env.tasks import get_task
 
     algo = algo.lower()
-    cls = _algo_class(algo, backend)
+    from millvib_env.control.agents import algo_class
+
+    cls = algo_class(algo, backend)
     the_task = get_task(task)
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
