@@ -3,9 +3,12 @@ when idle (the default, OMP_WAIT_POLICY=PASSIVE), on two threads that spin (Open
 OMP_WAIT_POLICY=ACTIVE) and on numba's workqueue layer, each in a fresh process, with and without a
 CPU hog (one busy process per core) beside them.
 
-    python scripts/thread_bench.py [--steps 600] [--repeats 3]
+    python scripts/thread_bench.py [--steps 600] [--repeats 5] [--settings serial passive ...]
 
-Prints one table (env steps/s, median of the repeats) per load setting.
+The settings run in turn within each repeat (serial, passive, spinning, workqueue, serial, ...), so
+each threaded rate is paired with the serial rate measured just before it: the machine's drift moves
+both. Prints one table per load setting: env steps/s (median of the repeats) and the paired ratio to
+serial (median, with the smallest and largest of the repeats).
 """
 from __future__ import annotations
 
@@ -18,11 +21,12 @@ import sys
 import time
 
 SETTINGS = {
-    "serial": {"MILLVIB_NUM_THREADS": "1"},
-    "2 threads, passive (default)": {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE"},
-    "2 threads, spinning": {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "ACTIVE"},
-    "2 threads, workqueue": {"MILLVIB_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "workqueue"},
+    "serial": ("serial", {"MILLVIB_NUM_THREADS": "1"}),
+    "passive": ("2 threads, passive (default)", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE"}),
+    "spinning": ("2 threads, spinning", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "ACTIVE"}),
+    "workqueue": ("2 threads, workqueue", {"MILLVIB_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "workqueue"}),
 }
+ENVS = ("MillVib-Valve-v0", "MillVib-GainSchedule-v0")
 STEP = """
 import sys, time, numpy as np, millvib_env
 env_id, steps = sys.argv[1], int(sys.argv[2])
@@ -44,38 +48,63 @@ def _hog(stop) -> None:
 
 
 def _rate(env_id: str, steps: int, setting: dict) -> float:
-    env = {**os.environ, **setting}
-    env.pop("OMP_WAIT_POLICY", None) if "OMP_WAIT_POLICY" not in setting else None
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER")}
+    env.update(setting)
     out = subprocess.run([sys.executable, "-c", STEP, env_id, str(steps)], env=env, capture_output=True, text=True,
                          check=True, timeout=600)
     return float(out.stdout.strip().splitlines()[-1])
 
 
+def _table(rates: dict, names: list[str], repeats: int) -> list[str]:
+    lines = [f"| setting | {ENVS[0]} (residual) | x serial (min-max) | {ENVS[1]} | x serial (min-max) |",
+             "|---|---:|---:|---:|---:|"]
+    for name in names:
+        cells = []
+        for env_id in ENVS:
+            runs = rates[name][env_id]
+            cells.append(f"{statistics.median(runs):,.0f}")
+            if name == "serial":
+                cells.append("1")
+                continue
+            ratios = [r / s for r, s in zip(runs, rates["serial"][env_id])]
+            cells.append(f"{statistics.median(ratios):.2f}x ({min(ratios):.2f}-{max(ratios):.2f})")
+        lines.append(f"| {SETTINGS[name][0]} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=600)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=600, help="valve steps per run (the gain env runs a tenth)")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS),
+                    help="which settings (serial always runs: it is what the others are paired with)")
+    ap.add_argument("--loads", nargs="+", choices=["idle", "hog"], default=["idle", "hog"])
     args = ap.parse_args()
-    for loaded in (False, True):
+    if args.steps < 1 or args.repeats < 1:
+        ap.error(f"--steps {args.steps} and --repeats {args.repeats}: each must be >= 1")
+    names = ["serial"] + [s for s in args.settings if s != "serial"]
+    for load in args.loads:
         stop, hogs = mp.Event(), []
-        if loaded:
+        if load == "hog":
             hogs = [mp.Process(target=_hog, args=(stop,), daemon=True) for _ in range(os.cpu_count() or 2)]
             for h in hogs:
                 h.start()
             time.sleep(1.0)
-        print(f"\n{'loaded: a CPU hog on every core' if loaded else 'idle'} (load {os.getloadavg()[0]:.1f}, "
-              f"{os.cpu_count()} CPUs); env steps/s, median of {args.repeats}:\n")
-        print("| setting | MillVib-Valve-v0 (residual) | MillVib-GainSchedule-v0 |")
-        print("|---|---|---|")
-        for name, setting in SETTINGS.items():
-            cells = []
-            for env_id in ("MillVib-Valve-v0", "MillVib-GainSchedule-v0"):
+        rates = {name: {env_id: [] for env_id in ENVS} for name in names}
+        loads = []
+        for _ in range(args.repeats):
+            for env_id in ENVS:
                 steps = args.steps if "Valve" in env_id else max(args.steps // 10, 30)
-                cells.append(statistics.median(_rate(env_id, steps, setting) for _ in range(args.repeats)))
-            print(f"| {name} | {cells[0]:,.0f} | {cells[1]:,.0f} |", flush=True)
+                for name in names:
+                    rates[name][env_id].append(_rate(env_id, steps, SETTINGS[name][1]))
+            loads.append(os.getloadavg()[0])
         stop.set()
         for h in hogs:
             h.join()
+        what = "loaded: a CPU hog on every core" if load == "hog" else "idle"
+        print(f"\n{what} (1-min load average {min(loads):.1f}-{max(loads):.1f} over the runs, {os.cpu_count()} "
+              f"CPUs); env steps/s, median of {args.repeats}, and the ratio to the serial run just before:\n")
+        print("\n".join(_table(rates, names, args.repeats)), flush=True)
 
 
 if __name__ == "__main__":

@@ -260,3 +260,61 @@ def test_realistic_config_adds_noise_delay_and_eccentricity():
     quiet = gym.make("MillVib-GainSchedule-v0", config="realistic", disturbances={"sensor_noise": None}).unwrapped
     quiet.reset(seed=4)
     assert quiet.core.observer.noise is None and quiet.params == env.params  # same plant, noise off
+
+
+def test_episodes_that_end_together_are_scored_as_one_at_a_time():
+    # the unstable corner: episodes end together (truncated) and apart (diverged, records of many
+    # lengths, some shorter than the 0.1 s split); the batched metrics are the single ones
+    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 8, seed=5, monitor=False, episode_s=0.2,
+                                    randomize={"c1": {"dist": "loguniform", "low": 1.25e5, "high": 2.5e5},
+                                               "Ct": {"dist": "loguniform", "low": 1e-10, "high": 5e-9}})
+    core = venv.core
+    venv.reset()
+    rng = np.random.default_rng(0)
+    lengths, diverged = set(), 0
+    for _ in range(300):
+        _, _, term, trunc, infos = core.step(np.sign(rng.uniform(-1, 1, (8, 3))))
+        for i in np.flatnonzero(term | trunc):
+            single = core.episode_metrics(i, bool(term[i]))
+            for key, value in single.items():
+                if isinstance(value, float):
+                    assert infos[i][key] == pytest.approx(value, rel=1e-12), key
+                else:
+                    assert infos[i][key] == value, key
+            lengths.add(int(core.n_trace[i]))
+            diverged += bool(term[i])
+            core.reset_env(i)
+    assert diverged >= 5 and len(lengths) >= 4 and min(lengths) < 1001
+
+
+@pytest.mark.parametrize("n_samp, spp", [(10, 10), (100, 10), (300, 10)])
+def test_the_period_summary_is_the_libraries_arithmetic(n_samp, spp):
+    # the compiled pass (envs.period) against scipy's sosfilt and numpy's mean, filter states carried
+    from scipy import signal as ssig
+
+    from millvib_env.envs.period import pairwise_sum, summarize_period
+    from millvib_env.plant.model import A_ACC, IPL, IV, IX, NAUX, NY
+
+    rng = np.random.default_rng(0)
+    sos = np.ascontiguousarray(ssig.butter(2, (10, 1000), btype="bandpass", fs=1e4, output="sos"))
+    n = 5
+    zi_ref, zi = np.zeros((sos.shape[0], n, 2)), np.zeros((n, sos.shape[0], 2))
+    acc_trace, n_trace = np.zeros((n, 20 * n_samp)), np.zeros(n, dtype=np.int64)
+    for period in range(20):
+        ys = rng.normal(size=(n, n_samp + 1, NY)) * 10.0 ** rng.uniform(-6, 2)
+        aux = rng.normal(size=(n, n_samp + 1, NAUX))
+        xd = rng.normal(size=(n, n_samp // spp))
+        out = [np.zeros(n) for _ in range(5)]
+        summarize_period(ys, aux, xd, spp, sos, zi, acc_trace, n_trace, *out)
+        v_band, zi_ref = ssig.sosfilt(sos, ys[:, 1:, IV], axis=1, zi=zi_ref)
+        e = np.repeat(xd, spp, axis=1) - ys[:, 1:, IX]
+        np.testing.assert_allclose(out[0], np.mean(v_band**2, axis=1), rtol=1e-12)
+        np.testing.assert_allclose(out[1], np.mean(e**2, axis=1), rtol=1e-12)
+        assert np.array_equal(out[2], np.abs(ys[:, 1:, IX]).max(axis=1))
+        assert np.array_equal(out[3], ys[:, 1:, IPL].min(axis=1)) and np.array_equal(out[4], ys[:, 1:, IPL].max(axis=1))
+        assert np.array_equal(acc_trace[:, period * n_samp:(period + 1) * n_samp], aux[:, 1:, A_ACC])
+    np.testing.assert_allclose(zi, zi_ref.transpose(1, 0, 2), rtol=1e-12, atol=1e-300)
+    assert np.all(n_trace == 20 * n_samp)
+    for size in (1, 7, 8, 9, 127, 128, 129, 1000, 5001):
+        a = rng.uniform(0, 1, size)
+        assert pairwise_sum(a, size) == pytest.approx(np.sum(a), rel=1e-14)

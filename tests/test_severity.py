@@ -142,3 +142,23 @@ def test_the_severity_band_is_the_configs(tmp_path, monkeypatch):
     finally:
         monkeypatch.undo()
         severity._load_severity_config.cache_clear()
+
+
+@pytest.mark.parametrize("quantity", ["acceleration", "velocity", "displacement"])
+def test_rows_of_records_give_each_records_own_figures(quantity):
+    from millvib_env.severity import band_levels, band_levels_rows, vibration_severity_rows
+
+    rng = np.random.default_rng(3)
+    records = np.cumsum(rng.normal(size=(5, 3001)), axis=1) * 1e-3
+    lines = np.array([115.5, 115.5, 100.0, 115.5, 60.0])
+    sev = vibration_severity_rows(records, FS, quantity=quantity, workers=2)
+    levels = band_levels_rows(records, FS, quantity=quantity, line_hz=lines, workers=2)
+    for j, rec in enumerate(records):
+        assert sev[j] == pytest.approx(vibration_severity(rec, FS, quantity=quantity), rel=1e-12)
+        single = band_levels(rec, FS, quantity=quantity, line_hz=lines[j])
+        for key, value in single.items():
+            assert levels[key][j] == pytest.approx(value, rel=1e-12), key
+    with pytest.raises(ValueError, match="workers"):
+        vibration_severity_rows(records, FS, workers=0)
+    with pytest.raises(ValueError, match="2-D"):
+        vibration_severity_rows(records[0], FS)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["MIN_PARALLEL", "use_threads", "configured_threads", "set_num_threads", "serial_unless_set",
+__all__ = ["MIN_PARALLEL", "use_threads", "numba_threads", "configured_threads", "set_num_threads", "serial_unless_set",
            "THREADS_ENV", "passive_waiting", "one_blas_thread",
            "one_xla_thread", "XLA_ONE_THREAD"]
 
@@ -105,6 +105,13 @@ def use_threads(n_plants: int, purpose: str = "") -> bool:
     if wanted is not None:
         numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))
     return numba.get_num_threads() > 1
+
+
+def numba_threads() -> int:
+    """How many threads a threaded batch runs on now (numba's setting, after `use_threads`)."""
+    import numba
+
+    return numba.get_num_threads()
 
 
 class serial_unless_set:

@@ -26,6 +26,7 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
+from millvib_env.envs.period import summarize_period
 from millvib_env.envs.reward import Reward
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
@@ -34,7 +35,8 @@ from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_UEXT,
                                      IPL, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, drive_vector, pack,
                                      settled_state)
-from millvib_env.severity import band_levels, iso_zone, vibration_severity
+from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
+from millvib_env.threads import numba_threads, use_threads
 
 __all__ = ["MillVibCore", "MAX_BATCH_BYTES"]
 
@@ -105,6 +107,7 @@ class MillVibCore:
         self.np_random: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(n)]
         self.noise_rng: list[np.random.Generator | None] = [None] * n
         self.params: list[MillParams] = [config.base_params] * n
+        self._plant_info: list[dict] = [{}] * n
         self.profiles: list[EpisodeProfile | None] = [None] * n
         self.scenario: list[str | None] = [None] * n
         self.started = np.zeros(n, dtype=bool)
@@ -129,6 +132,9 @@ class MillVibCore:
         self.status = np.zeros(n, dtype=np.int64)
         self.n_valid = np.zeros(n, dtype=np.int64)
         self.n_steps = np.zeros(n, dtype=np.int64)
+        #: the period's summary (`envs.period.summarize_period`): vibration and error mean squares, max |x|,
+        #: min and max pL, per environment
+        self._period = tuple(np.zeros(n) for _ in range(5))
         self.rtol = DEFAULT_RTOL_FAST
         self.max_kernel_steps = int(MAX_STEPS_PER_SECOND * self.period_s) + 1000
         #: when True, every step's info carries the period's measured signals ("signals"), as a mill's
@@ -148,10 +154,10 @@ class MillVibCore:
     def current_params(self, i: int) -> dict:
         """The plant of environment i now: c1 and Ct move during a plant change."""
         p = self.params[i]
-        c1, ct = p.c1, p.Ct
         change = self.profiles[i].change if self.profiles[i] is not None else None
-        if change is not None:
-            c1, ct = change.values_at(self.T[i], p)
+        if change is None:  # every step's info carries it: a copy of the episode's, not a new build
+            return dict(self._plant_info[i])
+        c1, ct = change.values_at(self.T[i], p)
         return {"c1": c1, "Ct": ct, "beta_e": p.beta_e, "mt": p.mt, "FL": p.FL, "pulse_amp": p.pulse_amp}
 
     # ------------------------------------------------------------------------------------------
@@ -170,6 +176,8 @@ class MillVibCore:
         params, profile = ep.params, ep.profile
         self.noise_rng[i] = ep.noise_rng
         self.params[i] = params
+        self._plant_info[i] = {"c1": params.c1, "Ct": params.Ct, "beta_e": params.beta_e, "mt": params.mt,
+                               "FL": params.FL, "pulse_amp": params.pulse_amp}
         self.profiles[i] = profile
         self.scenario[i] = ep.scenario
         self.P[i] = pack(params)
@@ -243,18 +251,17 @@ class MillVibCore:
         self.last_action = a
 
         cols = self.k[:, None] * self.n_sub + np.arange(self.n_sub)
-        xd_step = np.take_along_axis(self.XD, cols, axis=1)
-        dfl_step = np.take_along_axis(self.DFL, cols, axis=1)
+        rows = np.arange(n)[:, None]
+        xd_step, dfl_step = self.XD[rows, cols], self.DFL[rows, cols]
         active = np.ones(n, dtype=np.bool_)
         p_max = 10.0 * float(self.P[:, P_PS].max())  # numerical guard only; the envelope below is physical
         kernel.advance_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step, active,
                              self.cfg.control_dt_s, self.spp, self.rtol, self.ATOL, p_max, self.max_kernel_steps,
                              self.YS, self.AUXS, self.status, self.n_valid, self.n_steps)
 
-        samples = self.YS[:, 1:, :]
-        aux = self.AUXS[:, 1:, :]
         failed = self.status != 0
         if failed.any():  # hold the last good sample so nothing non-finite reaches the filters
+            samples, aux = self.YS[:, 1:, :], self.AUXS[:, 1:, :]
             valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
             last = np.maximum(self.n_valid - 1, 0)
             for b in np.flatnonzero(failed):
@@ -264,38 +271,36 @@ class MillVibCore:
                 aux[b, ~valid[b]] = good_a
                 if not np.all(np.isfinite(self.Y[b])):
                     self.Y[b] = good_y
-        x, v, pL = samples[:, :, IX], samples[:, :, IV], samples[:, :, IPL]
-        acc, u = aux[:, :, A_ACC], aux[:, :, A_U]
-        xd = np.repeat(xd_step, self.spp, axis=1)
-        e = xd - x
-        rows = np.arange(n)[:, None]
-        cols = self.n_trace[:, None] + np.arange(self.n_samp)[None, :]
-        self.acc_trace[rows, cols] = acc
-        self.n_trace += self.n_samp
-
+        vib_ms, err_ms, x_abs, pl_lo, pl_hi = self._period
+        summarize_period(self.YS, self.AUXS, xd_step, self.spp, self.reward.sos, self.reward.zi, self.acc_trace,
+                         self.n_trace, vib_ms, err_ms, x_abs, pl_lo, pl_hi)
+        last = self.YS[:, -1, :]
         ps = self.P[:, P_PS]
-        terminated = failed | (np.abs(x).max(axis=1) > self.x_max) | (pL.min(axis=1) < self.p_min) \
-            | (pL.max(axis=1) > self.p_max_factor * ps)
+        terminated = failed | (x_abs > self.x_max) | (pl_lo < self.p_min) | (pl_hi > self.p_max_factor * ps)
         offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and self.reward.w_off else None
-        reward, _, err_ms = self.reward.step(v, e, effort, terminated, offset)
+        reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset)
         self.sq_err_sum += err_ms * self.n_samp
         self.k += 1
         truncated = (self.k >= self.max_steps) & ~terminated
         self.ep_return += reward
 
-        u_pid = u[:, -1] - self.C[:, C_UEXT] if self.residual else np.zeros(n)
-        obs = self._observe(np.arange(n), e=e[:, -1], v=v[:, -1], a=acc[:, -1], pL=pL[:, -1], u_pid=u_pid)
+        u_last = self.AUXS[:, -1, A_U]
+        u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
+        obs = self._observe(np.arange(n), e=xd_step[:, -1] - last[:, IX], v=last[:, IV], a=self.AUXS[:, -1, A_ACC],
+                            pL=last[:, IPL], u_pid=u_pid)
         out_obs = self.observer.push(obs)
 
+        ended = np.flatnonzero(terminated | truncated)
+        metrics = dict(zip(ended.tolist(), self.episode_metrics_batch(ended, terminated[ended]))) if ended.size else {}
         infos: list[dict] = []
         for i in range(n):
             info = {"params": self.current_params(i)}
             if self.record_signals:
-                info["signals"] = self._signals(i, xd[i])
-            if terminated[i] or truncated[i]:
-                info.update(self.episode_metrics(i, bool(terminated[i])))
+                info["signals"] = self._signals(i, np.repeat(xd_step[i], self.spp))
+            if i in metrics:
+                info.update(metrics[i])
             infos.append(info)
-        self._record_history(x, v, u)
+        self._record_history()
         return out_obs, reward.astype(np.float64), terminated, truncated, infos
 
     def _signals(self, i: int, xd: np.ndarray) -> dict:
@@ -340,48 +345,72 @@ class MillVibCore:
         return self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * t + self.C[idx, C_EP])
 
     def episode_metrics(self, i: int, terminated: bool) -> dict:
-        """Episode-end metrics of environment i: severity over the whole episode (`vibration_severity`),
-        over its first TRANSIENT_S and over the rest, the pump line's and the 10-100 Hz band's levels,
-        tracking RMS, ISO zone. A diverged episode is scored on the record up to its end (its last
-        good sample held), at rest after that if it ended in its first 0.1 s; parts a too short
-        record cannot give are inf."""
-        n_tr = int(self.n_trace[i])
-        acc = self.acc_trace[i, :n_tr]
+        """Episode-end metrics of environment i (`episode_metrics_batch` of one environment)."""
+        return self.episode_metrics_batch(np.array([i]), np.array([terminated]))[0]
+
+    def episode_metrics_batch(self, idx: np.ndarray, terminated: np.ndarray) -> list[dict]:
+        """Episode-end metrics of environments `idx` (their episodes ended: `terminated` says which
+        diverged): severity over the whole episode (`vibration_severity`), over its first TRANSIENT_S
+        and over the rest, the pump line's and the 10-100 Hz band's levels, tracking RMS, ISO zone.
+        A diverged episode is scored on the record up to its end (its last good sample held), at rest
+        after that if it ended in its first 0.1 s; parts a too short record cannot give are inf.
+
+        Records of equal length (episodes that end together) are transformed together, on the
+        plant threads (`threads.use_threads`): the same numbers as one environment at a time."""
         fs = self.cfg.sample_rate_hz
         split = int(round(TRANSIENT_S * fs)) + 1
-        if terminated and n_tr < split:
-            # scored as if the mill stopped where it left its envelope: at rest for the rest of the
-            # shortest record the 10 Hz band edge allows (0.1 s), so the cost stays finite and large
-            acc = np.concatenate([acc, np.zeros(split - n_tr)])
-        levels = {"broadband": math.inf, "pump_line": math.inf, "low_band": math.inf}
-        sev_start = sev_rest = math.inf
-        try:
-            levels = band_levels(acc, fs, line_hz=self.params[i].pulse_freq)
-            sev_start = vibration_severity(acc[:split], fs)
-            sev_rest = vibration_severity(acc[split - 1:], fs)
-        except ValueError:  # a record too short for the band (an episode that ended at once)
-            pass
-        sev = levels["broadband"] if math.isfinite(levels["broadband"]) else math.inf
-        trk = math.sqrt(self.sq_err_sum[i] / max(n_tr, 1))
-        return {"severity": sev, "tracking_rms_um": trk * 1e6,
-                "iso_zone": iso_zone(sev) if math.isfinite(sev) else "D",
-                "severity_start": sev_start, "severity_rest": sev_rest,
-                "pump_line_mm_s": levels["pump_line"], "low_band_mm_s": levels["low_band"],
-                "diverged": bool(terminated), "episode_return": float(self.ep_return[i]),
-                "episode_steps": int(self.k[i]), "scenario": self.scenario[i]}
+        records = []
+        for i, term in zip(idx, terminated):
+            acc = self.acc_trace[i, :int(self.n_trace[i])]
+            if term and acc.size < split:
+                # scored as if the mill stopped where it left its envelope: at rest for the rest of the
+                # shortest record the 10 Hz band edge allows (0.1 s), so the cost stays finite and large
+                acc = np.concatenate([acc, np.zeros(split - acc.size)])
+            records.append(acc)
+        inf = math.inf
+        levels = {k: np.full(len(idx), inf) for k in ("broadband", "pump_line", "low_band", "start", "rest")}
+        for length in {r.size for r in records}:
+            rows = np.array([j for j, r in enumerate(records) if r.size == length])
+            acc = np.stack([records[j] for j in rows])
+            finite = np.isfinite(acc).all(axis=1)
+            if not finite.all():  # a record with NaN or inf has no severity: it keeps inf
+                rows, acc = rows[finite], acc[finite]
+            if not rows.size:
+                continue
+            workers = numba_threads() if use_threads(len(rows), "metrics") else 1
+            try:  # a record too short for the band (an episode that ended at once) keeps inf
+                parts = band_levels_rows(acc, fs, line_hz=np.array([self.params[i].pulse_freq for i in idx[rows]]),
+                                         workers=workers)
+                for key in ("broadband", "pump_line", "low_band"):
+                    levels[key][rows] = parts[key]
+                levels["start"][rows] = vibration_severity_rows(acc[:, :split], fs, workers=workers)
+                levels["rest"][rows] = vibration_severity_rows(acc[:, split - 1:], fs, workers=workers)
+            except ValueError:
+                pass
+        out = []
+        for j, (i, term) in enumerate(zip(idx, terminated)):
+            sev = float(levels["broadband"][j])
+            trk = math.sqrt(self.sq_err_sum[i] / max(int(self.n_trace[i]), 1))
+            out.append({"severity": sev, "tracking_rms_um": trk * 1e6,
+                        "iso_zone": iso_zone(sev) if math.isfinite(sev) else "D",
+                        "severity_start": float(levels["start"][j]), "severity_rest": float(levels["rest"][j]),
+                        "pump_line_mm_s": float(levels["pump_line"][j]), "low_band_mm_s": float(levels["low_band"][j]),
+                        "diverged": bool(term), "episode_return": float(self.ep_return[i]),
+                        "episode_steps": int(self.k[i]), "scenario": self.scenario[i]})
+        return out
 
     def acceleration_record(self, i: int) -> np.ndarray:
         """The acceleration samples of environment i's episode so far (m/s^2, from t = 0)."""
         return self.acc_trace[i, :int(self.n_trace[i])].copy()
 
-    def _record_history(self, x, v, u) -> None:
+    def _record_history(self) -> None:
         """Keep the first environment's recent samples for rendering."""
         h = self.history[0]
         h["t"].append(self.T[0])
-        h["x"].append(x[0].copy())
-        h["v"].append(v[0].copy())
+        h["x"].append(self.YS[0, 1:, IX].copy())
+        h["v"].append(self.YS[0, 1:, IV].copy())
         h["gains"].append(self.gains[0].copy())
-        h["u"].append(float(u[0, -1]))
+        h["u"].append(float(self.AUXS[0, -1, A_U]))
         keep = max(2, int(RENDER_WINDOW_S / self.period_s) + 1)
         for key in h:
             del h[key][:-keep]

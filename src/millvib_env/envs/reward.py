@@ -2,7 +2,8 @@
 
 ``r = -(w_v RMS(v_b) / vibration_scale + w_e RMS(e) / tracking_scale + w_u effort + w_o offset) - P [terminated]``
 with v_b the band-limited (10-1000 Hz, causal 4th-order Butterworth) piston velocity and
-e = xd - x, both over the period's plant samples; effort is the mean |change of the gain action|
+e = xd - x, both over the period's plant samples (their mean squares come from `envs.period`, which
+runs the filter with the sections designed here); effort is the mean |change of the gain action|
 (gain mode) or the squared valve action (valve mode); offset (gain mode, ``w_offset``, default 0) is
 the mean squared action: with a relative action, how far the gains are from their base controller.
 """
@@ -29,26 +30,26 @@ class Reward:
         self.ema_gain = 1.0 - math.exp(-period_s / spec["vib_time_constant_s"])
         from millvib_env.severity import severity_band
 
-        self.sos = ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz, output="sos")
-        self.zi = np.zeros((self.sos.shape[0], n, 2))
+        self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,
+                                                    output="sos"))
+        #: the filter's section states, per environment (n, sections, 2)
+        self.zi = np.zeros((n, self.sos.shape[0], 2))
         self.vib_ema = np.zeros(n)
 
     def start(self, i: int) -> None:
-        self.zi[:, i, :] = 0.0
+        self.zi[i] = 0.0
         self.vib_ema[i] = 0.0
 
-    def step(self, v: np.ndarray, e: np.ndarray, effort: np.ndarray, terminated: np.ndarray,
-             offset: np.ndarray | None = None):
-        """(reward, mean square of band velocity, mean square of error) of this period, per env."""
-        v_band, self.zi = ssig.sosfilt(self.sos, v, axis=1, zi=self.zi)
-        vib_ms = np.mean(v_band**2, axis=1)
-        err_ms = np.mean(e**2, axis=1)
+    def step(self, vib_ms: np.ndarray, err_ms: np.ndarray, effort: np.ndarray, terminated: np.ndarray,
+             offset: np.ndarray | None = None) -> np.ndarray:
+        """This period's reward per env, from the mean squares of its band-passed velocity and of its
+        position error (`envs.period.summarize_period`, which also advances `zi`)."""
         self.vib_ema += self.ema_gain * (vib_ms - self.vib_ema)
         reward = -(self.w_vib * np.sqrt(vib_ms) / self.vib_scale + self.w_trk * np.sqrt(err_ms) / self.trk_scale
                    + self.w_eff * effort) - self.penalty * terminated
         if self.w_off and offset is not None:
             reward = reward - self.w_off * offset
-        return reward, vib_ms, err_ms
+        return reward
 
     @property
     def vib_rms(self) -> np.ndarray:
