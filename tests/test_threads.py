@@ -51,3 +51,39 @@ def test_fork_vector_env_steps_after_the_parent_used_threads_and_torch():
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240,
                          env={**__import__("os").environ, "MILLVIB_NUM_THREADS": "2"})
     assert run.returncode == 0 and "ok" in run.stdout, run.stderr[-2000:]
+
+
+_IDLE_CPU = textwrap.dedent("""
+    import os, sys, time
+    assert "numba" not in sys.modules
+    import numpy as np, millvib_env, numba
+    from numba.np.ufunc import parallel
+    policy = os.environ.get("OMP_WAIT_POLICY")
+    started_before = parallel._is_initialized          # the pool must not exist yet when the policy is set
+    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 16, seed=0, monitor=False)
+    venv.reset(); venv.step(np.zeros((16, 3)))         # a threaded batch: the pool starts here
+    layer = numba.threading_layer()
+    t0 = time.process_time(); time.sleep(0.5); idle = time.process_time() - t0   # CPU burnt while idle
+    print(policy, started_before, layer, numba.get_num_threads(), f"{idle:.3f}")
+""")
+
+
+def _idle_cpu(**env) -> tuple[str, bool, str, int, float]:
+    run = subprocess.run([sys.executable, "-c", _IDLE_CPU], capture_output=True, text=True, timeout=240,
+                         env={**{k: v for k, v in __import__("os").environ.items() if k != "OMP_WAIT_POLICY"},
+                              "MILLVIB_NUM_THREADS": "2", "NUMBA_NUM_THREADS": "2", **env})
+    assert run.returncode == 0, run.stderr[-2000:]
+    policy, started, layer, n, idle = run.stdout.split()
+    return policy, started == "True", layer, int(n), float(idle)
+
+
+@pytest.mark.slow
+def test_idle_plant_threads_sleep_because_the_policy_is_set_before_the_pool_starts():
+    policy, started_before, layer, n, idle = _idle_cpu()
+    assert policy == "PASSIVE" and not started_before and n == 2
+    if layer != "omp":
+        pytest.skip(f"numba's threading layer here is {layer!r}, not OpenMP: the wait policy does not apply")
+    # measured here: 0.001 s of CPU in a 0.5 s sleep; spinning threads burn 0.50 s (below)
+    assert idle < 0.1
+    user_policy, _, _, _, spinning = _idle_cpu(OMP_WAIT_POLICY="ACTIVE")  # a user's setting is kept ...
+    assert user_policy == "ACTIVE" and spinning > 0.25  # ... and the measurement sees spinning threads

@@ -292,14 +292,12 @@ class MillVibCore:
 
         ended = np.flatnonzero(terminated | truncated)
         metrics = dict(zip(ended.tolist(), self.episode_metrics_batch(ended, terminated[ended]))) if ended.size else {}
-        infos: list[dict] = []
-        for i in range(n):
-            info = {"params": self.current_params(i)}
-            if self.record_signals:
-                info["signals"] = self._signals(i, np.repeat(xd_step[i], self.spp))
-            if i in metrics:
-                info.update(metrics[i])
-            infos.append(info)
+        infos: list[dict] = [{"params": self.current_params(i)} for i in range(n)]
+        if self.record_signals:
+            for i in range(n):
+                infos[i]["signals"] = self._signals(i, np.repeat(xd_step[i], self.spp))
+        for i, m in metrics.items():
+            infos[i].update(m)
         self._record_history()
         return out_obs, reward.astype(np.float64), terminated, truncated, infos
 

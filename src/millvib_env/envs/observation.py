@@ -32,6 +32,17 @@ def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
     return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / math.log1p(q_max / q0), -1.0, 1.0)
 
 
+def _slog_rows(q: np.ndarray, q0: np.ndarray, denom: np.ndarray) -> np.ndarray:
+    """`slog` of several channels at once (rows of q; q0 and ln(1 + q_max/q0) per row, as columns):
+    the same arithmetic as one `slog` call per channel, in a quarter of the numpy calls."""
+    return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / denom, -1.0, 1.0)
+
+
+#: q0 and ln(1 + q_max/q0) of the error, velocity, acceleration and vibration channels, per row
+_SLOG_ROWS = tuple(np.array([[f(*OBS_SCALES[k][2:])] for k in ("error", "velocity", "acceleration", "vibration")])
+                   for f in (lambda q0, q_max: q0, lambda q0, q_max: math.log1p(q_max / q0)))
+
+
 class Observer:
     """Builds the observation vectors of a batch of environments in one mode."""
 
@@ -64,9 +75,8 @@ class Observer:
         if self.noise is not None:
             noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
             e, v, a = e - noise[:, 0], v + noise[:, 1], a + noise[:, 2]
-        cols = [slog(e, *OBS_SCALES["error"][2:]), slog(v, *OBS_SCALES["velocity"][2:]),
-                slog(a, *OBS_SCALES["acceleration"][2:]), np.clip((pL - ps / 2) / ps, -1, 1),
-                slog(vib_rms * 1e3, *OBS_SCALES["vibration"][2:])]
+        err, vel, acc, vib = _slog_rows(np.stack([e, v, a, vib_rms * 1e3]), *_SLOG_ROWS)
+        cols = [err, vel, acc, np.clip((pL - ps / 2) / ps, -1, 1), vib]
         cols += list(np.atleast_2d(control).T) if self.mode == "gain" else [control]
         if self.mode == "valve" and self.residual:
             cols.append(np.clip(u_pid, -1, 1))

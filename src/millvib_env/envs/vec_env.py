@@ -64,8 +64,8 @@ class MillVibVecEnv(VecEnv):
     def step_wait(self):
         obs, reward, terminated, truncated, infos = self.core.step(self._actions)
         dones = terminated | truncated
-        for i, info in enumerate(infos):
-            info["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        for info, cut in zip(infos, (truncated & ~terminated).tolist()):
+            info["TimeLimit.truncated"] = cut
         for i in np.flatnonzero(dones):
             infos[i]["terminal_observation"] = obs[i].copy()
             obs[i], self.reset_infos[i] = self.core.reset_env(i)
