@@ -1,9 +1,10 @@
 """Plant threads under load and idle: the 64-env VecEnvs stepped serially, on two threads that sleep
 when idle (the default, OMP_WAIT_POLICY=PASSIVE), on two threads that spin (OpenMP's own default,
-OMP_WAIT_POLICY=ACTIVE) and on numba's workqueue layer, each in a fresh process, with and without a
-CPU hog (one busy process per core) beside them.
+OMP_WAIT_POLICY=ACTIVE) and on numba's workqueue layer (and, asked for, threads that spin a bounded
+count before they sleep: spin10k, spin100k), each in a fresh process, with and without a CPU hog (one
+busy process per core) beside them.
 
-    python scripts/thread_bench.py [--steps 600] [--repeats 5] [--settings serial passive ...]
+    python scripts/thread_bench.py [--steps 1500] [--repeats 5] [--settings serial passive ...]
 
 The settings run in turn within each repeat (serial, passive, spinning, workqueue, serial, ...), so
 each threaded rate is paired with the serial rate measured just before it: the machine's drift moves
@@ -25,7 +26,13 @@ SETTINGS = {
     "passive": ("2 threads, passive (default)", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE"}),
     "spinning": ("2 threads, spinning", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "ACTIVE"}),
     "workqueue": ("2 threads, workqueue", {"MILLVIB_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "workqueue"}),
+    # bounded spinning: GOMP_SPINCOUNT overrides the passive policy's spin count of 0 (not run by default)
+    "spin10k": ("2 threads, spin 10,000 then sleep", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE",
+                                                      "GOMP_SPINCOUNT": "10000"}),
+    "spin100k": ("2 threads, spin 100,000 then sleep", {"MILLVIB_NUM_THREADS": "2", "OMP_WAIT_POLICY": "PASSIVE",
+                                                        "GOMP_SPINCOUNT": "100000"}),
 }
+DEFAULT_SETTINGS = ["serial", "passive", "spinning", "workqueue"]
 ENVS = ("MillVib-Valve-v0", "MillVib-GainSchedule-v0")
 STEP = """
 import sys, time, numpy as np, millvib_env
@@ -48,14 +55,15 @@ def _hog(stop) -> None:
 
 
 def _rate(env_id: str, steps: int, setting: dict) -> float:
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER")}
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER", "GOMP_SPINCOUNT")}
     env.update(setting)
     out = subprocess.run([sys.executable, "-c", STEP, env_id, str(steps)], env=env, capture_output=True, text=True,
                          check=True, timeout=600)
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def _table(rates: dict, names: list[str], repeats: int) -> list[str]:
+def _table(rates: dict, names: list[str]) -> list[str]:
     lines = [f"| setting | {ENVS[0]} (residual) | x serial (min-max) | {ENVS[1]} | x serial (min-max) |",
              "|---|---:|---:|---:|---:|"]
     for name in names:
@@ -74,9 +82,9 @@ def _table(rates: dict, names: list[str], repeats: int) -> list[str]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=600, help="valve steps per run (the gain env runs a tenth)")
+    ap.add_argument("--steps", type=int, default=1500, help="valve steps per run (the gain env runs a tenth)")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS),
+    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=DEFAULT_SETTINGS,
                     help="which settings (serial always runs: it is what the others are paired with)")
     ap.add_argument("--loads", nargs="+", choices=["idle", "hog"], default=["idle", "hog"])
     args = ap.parse_args()
@@ -104,7 +112,7 @@ def main() -> None:
         what = "loaded: a CPU hog on every core" if load == "hog" else "idle"
         print(f"\n{what} (1-min load average {min(loads):.1f}-{max(loads):.1f} over the runs, {os.cpu_count()} "
               f"CPUs); env steps/s, median of {args.repeats}, and the ratio to the serial run just before:\n")
-        print("\n".join(_table(rates, names, args.repeats)), flush=True)
+        print("\n".join(_table(rates, names)), flush=True)
 
 
 if __name__ == "__main__":

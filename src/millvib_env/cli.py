@@ -18,7 +18,7 @@ fixed-gain PIDs.
 commands:
   simulate    one closed-loop run: severity, ISO zone, kind of motion, tracking error (--plot)
   reproduce   the paper's three studies (Figs. 4-9 analogues), stability and motion maps
-  bench       integrator and environment speed (the README's throughput tables)
+  bench       integrator and environment speed (the tables of docs/performance.md)
   params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
   scenarios   the named failure scenarios with the paper PID's measured outcome
   tasks       the benchmark's tasks (startup, rolling, change) and their seed ranges
