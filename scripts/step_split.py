@@ -15,15 +15,10 @@ import statistics
 import subprocess
 import sys
 
-STEP = """
-import sys, time, numpy as np, millvib_env
+from thread_bench import SETUP  # the same env, actions and warm-up
+
+STEP = SETUP + """
 from millvib_env.plant import kernel
-env_id, steps = sys.argv[1], int(sys.argv[2])
-venv = millvib_env.make_vec_env(env_id, 64, seed=0, **({"residual": True} if "Valve" in env_id else {}))
-venv.reset()
-a = np.random.default_rng(0).uniform(-0.3, 0.3, (steps + 20, 64, venv.action_space.shape[0])).astype(np.float32)
-for k in range(20):
-    venv.step(a[k])
 inner, spent = kernel.advance_batch, [0.0]
 def timed(*args):
     t = time.perf_counter()

@@ -34,7 +34,8 @@ SETTINGS = {
 }
 DEFAULT_SETTINGS = ["serial", "passive", "spinning", "workqueue"]
 ENVS = ("MillVib-Valve-v0", "MillVib-GainSchedule-v0")
-STEP = """
+#: a fresh process's 64-env VecEnv (argv: env id, steps), random actions `a`, 20 steps of warm-up
+SETUP = """
 import sys, time, numpy as np, millvib_env
 env_id, steps = sys.argv[1], int(sys.argv[2])
 venv = millvib_env.make_vec_env(env_id, 64, seed=0, **({"residual": True} if "Valve" in env_id else {}))
@@ -42,6 +43,8 @@ venv.reset()
 a = np.random.default_rng(0).uniform(-0.3, 0.3, (steps + 20, 64, venv.action_space.shape[0])).astype(np.float32)
 for k in range(20):
     venv.step(a[k])
+"""
+STEP = SETUP + """
 t = time.perf_counter()
 for k in range(steps):
     venv.step(a[20 + k])
