@@ -23,7 +23,8 @@ def _imports(folder: Path) -> set[str]:
                 found |= {a.name.split(".")[0] for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 found.add(node.module.split(".")[0])
-    return {m for m in found if m not in sys.stdlib_module_names and m not in ("millvib_env", "tests")}
+    local = {path.stem for path in folder.rglob("*.py")}  # a script importing its sibling script
+    return {m for m in found if m not in sys.stdlib_module_names and m not in {"millvib_env", "tests"} | local}
 
 
 def _declared() -> tuple[set[str], set[str]]:
