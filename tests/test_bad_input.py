@@ -169,7 +169,8 @@ def _api_calls():
     from millvib_env.envs.vec_env import make_vec_env
     from millvib_env.params import load_preset, parse_overrides
     from millvib_env.plant.integrate import simulate, simulate_batch
-    from millvib_env.severity import band_levels, iso_zone, vibration_severity
+    from millvib_env.severity import (band_levels, band_levels_rows, iso_zone, vibration_severity,
+                                      vibration_severity_rows)
     from millvib_env.training.benchmark import run_benchmark
     from millvib_env.training.evaluate import episode_cost, run_episodes, trace_episode
     from millvib_env.training.sweep import run_sweep
@@ -187,6 +188,10 @@ def _api_calls():
         "vibration_severity": (lambda **k: vibration_severity(**{"signal": sig, "fs": 1e4, **k}),
                                ["signal", "fs", "quantity", "band"]),
         "band_levels": (lambda **k: band_levels(**{"signal": sig, "fs": 1e4, **k}), ["band", "low_band", "line_hz"]),
+        "vibration_severity_rows": (lambda **k: vibration_severity_rows(**{"records": sig[None], "fs": 1e4, **k}),
+                                    ["records", "fs", "quantity", "band", "workers"]),
+        "band_levels_rows": (lambda **k: band_levels_rows(**{"records": sig[None], "fs": 1e4, **k}),
+                             ["band", "low_band", "line_hz", "workers"]),
         "iso_zone": (lambda **k: iso_zone(**{"severity_mm_s": 1.0, **k}), ["severity_mm_s", "machine_class"]),
         "SimResult.severity": (lambda **k: run.severity(**k), ["t_start", "quantity", "band"]),
         "classify_motion": (lambda **k: classify_motion(**{"result": run, **k}), ["result", "tail", "max_period"]),

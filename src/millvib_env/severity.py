@@ -178,6 +178,16 @@ def vibration_severity_rows(records: np.ndarray, fs: float, *, quantity: Quantit
     return 1000.0 * np.sqrt(_mean_square(vel, 2 * x.shape[1]))
 
 
+def _line_per_row(line_hz, rows: int) -> np.ndarray:
+    """`line_hz` (Hz, >= 0): one frequency for every row, or a sequence of one per row."""
+    if isinstance(line_hz, (str, bytes, dict)) or not hasattr(line_hz, "__len__") or np.ndim(line_hz) == 0:
+        return np.full(rows, real("line_hz", line_hz, lo=0.0))
+    if len(line_hz) != rows:
+        raise ValueError(f"line_hz has {len(line_hz)} values for {rows} records: one frequency in Hz, or one per "
+                         "record")
+    return np.array([real(f"line_hz[{k}]", f, lo=0.0) for k, f in enumerate(line_hz)])
+
+
 def _checked_workers(workers: int) -> int:
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers = {workers!r} is invalid: a number of threads >= 1")
@@ -225,8 +235,7 @@ def band_levels_rows(records: np.ndarray, fs: float, *, quantity: Quantity = "ac
     if low_band is None:
         raise ValueError("low_band = None is invalid: a (low, high) pair in Hz with 0 <= low < high")
     low_band = _band_for_record(x.shape[1], fs, checked_band("low_band", low_band), "low_band")
-    lines = np.broadcast_to(np.asarray([real("line_hz", f, lo=0.0) for f in np.atleast_1d(line_hz)]), x.shape[:1]) \
-        if np.ndim(line_hz) else np.full(x.shape[0], real("line_hz", line_hz, lo=0.0))
+    lines = _line_per_row(line_hz, x.shape[0])
     n = 2 * x.shape[1]
     resolution = fs / n
     if line_width_hz is None:
