@@ -96,6 +96,38 @@ class ObservationSettings:
 
 
 @dataclass(frozen=True)
+class RewardSettings:
+    """The config's `reward` section, typed (the schema requires every key but w_offset)."""
+
+    vibration_scale_mm_s: float  # the band velocity RMS that costs 1 (mm/s)
+    tracking_scale_um: float     # the tracking RMS that costs 1 (um)
+    vib_time_constant_s: float   # the observed running RMS's time constant (s)
+    w_vibration: float
+    w_tracking: float
+    w_effort: float
+    terminal_penalty: float      # subtracted once when an episode leaves the envelope
+    w_offset: float = 0.0        # penalty on a relative gain action's distance from its base
+
+
+@dataclass(frozen=True)
+class EnvelopeSettings:
+    """The config's `envelope` section, typed: where an episode is terminated."""
+
+    x_max_m: float       # |x| above this
+    p_min_pa: float      # pL below this
+    p_max_factor: float  # pL above this multiple of the supply pressure
+
+
+@dataclass(frozen=True)
+class InitialSettings:
+    """The config's `initial` section, typed, with its defaults in one place."""
+
+    x0_m: float = 0.0          # the start's displacement (m)
+    x0_jitter_m: float = 0.0   # drawn uniformly within +- this around x0_m (m)
+    settled: bool = False      # start from the settled operating point instead
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     """Validated environment configuration (see configs/env/startup.yaml for every key)."""
 
@@ -125,6 +157,18 @@ class EnvConfig:
     @property
     def observation(self) -> ObservationSettings:
         return ObservationSettings(**self.raw["observation"])
+
+    @property
+    def reward(self) -> RewardSettings:
+        return RewardSettings(**self.raw["reward"])
+
+    @property
+    def envelope(self) -> EnvelopeSettings:
+        return EnvelopeSettings(**self.raw["envelope"])
+
+    @property
+    def initial(self) -> InitialSettings:
+        return InitialSettings(**self.raw["initial"])
 
     @property
     def pressure_feedback(self) -> bool:

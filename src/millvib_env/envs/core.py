@@ -98,9 +98,9 @@ class MillVibCore:
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
-        self.reward = Reward(raw["reward"], period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n)
-        env = raw["envelope"]
-        self.x_max, self.p_min, self.p_max_factor = env["x_max_m"], env["p_min_pa"], env["p_max_factor"]
+        self.reward = Reward(config.reward, period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n)
+        env = config.envelope
+        self.x_max, self.p_min, self.p_max_factor = env.x_max_m, env.p_min_pa, env.p_max_factor
 
         # per-environment state
         n = self.n

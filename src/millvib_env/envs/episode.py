@@ -60,7 +60,7 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
         raise ValueError(f"reset option scenario = {scenario!r} is invalid: a scenario name")
     x0 = out.get("x0")
     if x0 is not None:
-        x_max = config["envelope"]["x_max_m"]
+        x_max = config.envelope.x_max_m
         if isinstance(x0, bool) or not isinstance(x0, (int, float, np.floating, np.integer)) \
                 or not math.isfinite(x0) or abs(x0) >= x_max:
             raise ValueError(f"reset option x0 = {x0!r} m is invalid: a finite displacement with |x0| < "
@@ -73,11 +73,9 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     """Draw the episode of `episode_seed` (options already checked by `check_reset_options`)."""
     plant_ss, dist_ss, noise_ss = np.random.SeedSequence(episode_seed).spawn(3)
     plant_rng, dist_rng = np.random.default_rng(plant_ss), np.random.default_rng(dist_ss)
-    initial = config["initial"]
+    initial = config.initial
     pinned: dict[str, float] = {}
-    x0 = float(initial.get("x0_m", 0.0))
-    jitter = float(initial.get("x0_jitter_m", 0.0) or 0.0)
-    settled = bool(initial.get("settled", False))
+    x0, jitter, settled = float(initial.x0_m), float(initial.x0_jitter_m), bool(initial.settled)
     scenario = options.get("scenario")
     if scenario is not None:
         from millvib_env.envs.scenarios import get_scenario

@@ -15,19 +15,21 @@ import math
 import numpy as np
 from scipy import signal as ssig
 
+from millvib_env.envs.config import RewardSettings
+
 __all__ = ["Reward"]
 
 
 class Reward:
     """Reward weights and the band-pass filter state of a batch of environments."""
 
-    def __init__(self, spec: dict, *, period_s: float, sample_rate_hz: float, n: int):
-        self.w_vib, self.w_trk, self.w_eff = spec["w_vibration"], spec["w_tracking"], spec["w_effort"]
-        self.w_off = float(spec.get("w_offset", 0.0))
-        self.vib_scale = spec["vibration_scale_mm_s"] * 1e-3
-        self.trk_scale = spec["tracking_scale_um"] * 1e-6
-        self.penalty = spec["terminal_penalty"]
-        self.ema_gain = 1.0 - math.exp(-period_s / spec["vib_time_constant_s"])
+    def __init__(self, spec: RewardSettings, *, period_s: float, sample_rate_hz: float, n: int):
+        self.w_vib, self.w_trk, self.w_eff = spec.w_vibration, spec.w_tracking, spec.w_effort
+        self.w_off = float(spec.w_offset)
+        self.vib_scale = spec.vibration_scale_mm_s * 1e-3
+        self.trk_scale = spec.tracking_scale_um * 1e-6
+        self.penalty = spec.terminal_penalty
+        self.ema_gain = 1.0 - math.exp(-period_s / spec.vib_time_constant_s)
         from millvib_env.severity import severity_band
 
         self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,
