@@ -158,7 +158,7 @@ class MillVibCore:
         if change is None:  # every step's info carries it: a copy of the episode's, not a new build
             return dict(self._plant_info[i])
         c1, ct = change.values_at(self.T[i], p)
-        return {"c1": c1, "Ct": ct, "beta_e": p.beta_e, "mt": p.mt, "FL": p.FL, "pulse_amp": p.pulse_amp}
+        return {**self._plant_info[i], "c1": c1, "Ct": ct}
 
     # ------------------------------------------------------------------------------------------
     def seed_env(self, i: int, seed: int | None) -> None:
@@ -176,6 +176,7 @@ class MillVibCore:
         params, profile = ep.params, ep.profile
         self.noise_rng[i] = ep.noise_rng
         self.params[i] = params
+        # info["params"]: the episode's plant (c1 and Ct replaced while it changes: `current_params`)
         self._plant_info[i] = {"c1": params.c1, "Ct": params.Ct, "beta_e": params.beta_e, "mt": params.mt,
                                "FL": params.FL, "pulse_amp": params.pulse_amp}
         self.profiles[i] = profile

@@ -29,18 +29,19 @@ OBS_SCALES = {
 
 def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
     """Signed log scaling to [-1, 1]: sign(q) ln(1 + |q|/q0) / ln(1 + q_max/q0), clipped."""
-    return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / math.log1p(q_max / q0), -1.0, 1.0)
+    return _slog(q, q0, math.log1p(q_max / q0))
 
 
-def _slog_rows(q: np.ndarray, q0: np.ndarray, denom: np.ndarray) -> np.ndarray:
-    """`slog` of several channels at once (rows of q; q0 and ln(1 + q_max/q0) per row, as columns):
-    the same arithmetic as one `slog` call per channel, in a quarter of the numpy calls."""
+def _slog(q: np.ndarray, q0, denom) -> np.ndarray:
+    """`slog` with its denominator ln(1 + q_max/q0) given; q0 and denom may be columns, one per row of q
+    (several channels scaled in one set of numpy calls, the same arithmetic as one call per channel)."""
     return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / denom, -1.0, 1.0)
 
 
-#: q0 and ln(1 + q_max/q0) of the error, velocity, acceleration and vibration channels, per row
-_SLOG_ROWS = tuple(np.array([[f(*OBS_SCALES[k][2:])] for k in ("error", "velocity", "acceleration", "vibration")])
-                   for f in (lambda q0, q_max: q0, lambda q0, q_max: math.log1p(q_max / q0)))
+#: the channels built together (`Observer.build`), and their q0 and ln(1 + q_max/q0) as columns
+_ROW_CHANNELS = ("error", "velocity", "acceleration", "vibration")
+_ROW_Q0 = np.array([[OBS_SCALES[k][2]] for k in _ROW_CHANNELS])
+_ROW_DENOM = np.array([[math.log1p(OBS_SCALES[k][3] / OBS_SCALES[k][2])] for k in _ROW_CHANNELS])
 
 
 class Observer:
@@ -75,7 +76,7 @@ class Observer:
         if self.noise is not None:
             noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
             e, v, a = e - noise[:, 0], v + noise[:, 1], a + noise[:, 2]
-        err, vel, acc, vib = _slog_rows(np.stack([e, v, a, vib_rms * 1e3]), *_SLOG_ROWS)
+        err, vel, acc, vib = _slog(np.stack([e, v, a, vib_rms * 1e3]), _ROW_Q0, _ROW_DENOM)  # _ROW_CHANNELS
         cols = [err, vel, acc, np.clip((pL - ps / 2) / ps, -1, 1), vib]
         cols += list(np.atleast_2d(control).T) if self.mode == "gain" else [control]
         if self.mode == "valve" and self.residual:
