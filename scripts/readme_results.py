@@ -1,12 +1,13 @@
-"""Copy each task's results from docs/benchmark/<task>/ into the README (headline table) and into
-docs/benchmark.md (the full tables).
+"""Copy each task's results from docs/benchmark/<version>/<task>/ into the README (headline table, v1 only)
+and into docs/benchmark.md (the full tables).
 
-    millvib benchmark --task T --all-seeds --out docs/benchmark/T    # for each task, then
-    python scripts/readme_results.py [startup rolling change]
+    millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T    # for each task, then
+    python scripts/readme_results.py [startup rolling change] [--version v1]
 
-Fills the blocks between ``<!-- results: TASK -->`` and ``<!-- end results -->`` (README.md: a
-compact table from benchmark.json; docs/benchmark.md: benchmark.md's main table, its seed-spread
-table and its note on the normalised score). The verdicts are prose: reread them against the tables.
+Fills the blocks between ``<!-- results: TASK -->`` and ``<!-- end results -->`` in README.md (a compact
+table from benchmark.json, the loop as commissioned) and ``<!-- results: VERSION TASK -->`` in
+docs/benchmark.md (benchmark.md's main table, its actuator table, its seed-spread table and its note on the
+normalised score). The verdicts are prose: reread them against the tables.
 """
 import argparse
 import json
@@ -30,6 +31,9 @@ def full_block(md: str) -> list[str]:
     lines = md.splitlines()
     first = next(i for i, x in enumerate(lines) if x.startswith("| controller | seeds |"))
     block = [lines[0], ""] + _table(lines, first)
+    actuator = [i for i, x in enumerate(lines) if x.startswith("The actuator (")]
+    if actuator:
+        block += ["", lines[actuator[0]], ""] + _table(lines, actuator[0] + 2)
     spread = [i for i, x in enumerate(lines) if x.startswith("Spread over training seeds")]
     if spread:
         block += ["", lines[spread[0]], ""] + _table(lines, spread[0] + 2)
@@ -57,7 +61,7 @@ def headline_block(data: dict) -> list[str]:
 
 
 def fill(text: str, task: str, block: list[str], where: str) -> str:
-    pattern = re.compile(rf"(<!-- results: {task} -->\n).*?(<!-- end results -->)", re.S)
+    pattern = re.compile(rf"(<!-- results: {re.escape(task)} -->\n).*?(<!-- end results -->)", re.S)
     if not pattern.search(text):
         raise SystemExit(f"{where} has no block <!-- results: {task} --> ... <!-- end results -->")
     return pattern.sub(lambda m: m.group(1) + "\n".join(block) + "\n" + m.group(2), text)
@@ -67,6 +71,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("tasks", nargs="*", metavar="TASK",
                     help=f"tasks to copy ({', '.join(list_tasks())}; default all)")
+    ap.add_argument("--version", default="v1", choices=["v0", "v1"],
+                    help="the results of which environment version (default v1; the README shows v1 only)")
     args = ap.parse_args()
     for task in args.tasks:
         if task not in list_tasks():
@@ -74,14 +80,17 @@ def main() -> None:
     readme, docs = ROOT / "README.md", ROOT / "docs" / "benchmark.md"
     r_text, d_text = readme.read_text(), docs.read_text()
     for task in args.tasks or list_tasks():
-        folder = ROOT / "docs" / "benchmark" / task
+        folder = ROOT / "docs" / "benchmark" / args.version / task
         if not (folder / "benchmark.json").is_file() or not (folder / "benchmark.md").is_file():
             ap.error(f"{folder} has no benchmark.json / benchmark.md: run `millvib benchmark --task {task} "
-                     f"--all-seeds --out {folder.relative_to(ROOT)}` first")
+                     f"--env-version {args.version} --all-seeds --out {folder.relative_to(ROOT)}` first")
         data = json.loads((folder / "benchmark.json").read_text())
-        r_text = fill(r_text, task, headline_block(data), "README.md")
-        d_text = fill(d_text, task, full_block((folder / "benchmark.md").read_text()), "docs/benchmark.md")
-        print(f"README.md and docs/benchmark.md: {task} from {folder.relative_to(ROOT)}")
+        if args.version == "v1":
+            r_text = fill(r_text, task, headline_block(data), "README.md")
+        d_text = fill(d_text, f"{args.version} {task}", full_block((folder / "benchmark.md").read_text()),
+                      "docs/benchmark.md")
+        print(f"{'README.md and ' if args.version == 'v1' else ''}docs/benchmark.md: {task} from "
+              f"{folder.relative_to(ROOT)}")
     write_text_atomic(readme, r_text)
     write_text_atomic(docs, d_text)
 

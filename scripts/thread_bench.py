@@ -5,6 +5,7 @@ count before they sleep: spin10k, spin100k), each in a fresh process, with and w
 busy process per core) beside them.
 
     python scripts/thread_bench.py [--steps 1500] [--repeats 5] [--settings serial passive ...]
+    python scripts/thread_bench.py --idle-cpu    # CPU an idle plant pool burns in 0.5 s, per wait policy
 
 The settings run in turn within each repeat (serial, passive, spinning, workqueue, serial, ...), so
 each threaded rate is paired with the serial rate measured just before it: the machine's drift moves
@@ -83,8 +84,32 @@ def _table(rates: dict, names: list[str]) -> list[str]:
     return lines
 
 
+#: a fresh process: a threaded batch starts numba's pool, then the CPU it burns during a 0.5 s sleep
+IDLE_CPU = """
+import time, numpy as np, millvib_env, numba
+venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 16, seed=0, monitor=False)
+venv.reset(); venv.step(np.zeros((16, 3)))
+t0 = time.process_time(); time.sleep(0.5); print(numba.threading_layer(), f"{time.process_time() - t0:.3f}")
+"""
+
+
+def idle_cpu(repeats: int) -> None:
+    """What an idle plant pool costs: CPU seconds burnt in a 0.5 s sleep after a threaded batch, per
+    wait policy (a timing, so a measurement here and not a test: load on the machine moves it)."""
+    base = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    print(f"CPU seconds an idle 2-thread plant pool burns during a 0.5 s sleep (1-min load "
+          f"{os.getloadavg()[0]:.1f}):")
+    for label, extra in (("passive (the default)", {}), ("a user's OMP_WAIT_POLICY=ACTIVE", {"OMP_WAIT_POLICY":
+                                                                                              "ACTIVE"})):
+        out = [subprocess.run([sys.executable, "-c", IDLE_CPU], capture_output=True, text=True, check=True,
+                              env={**base, "MILLVIB_NUM_THREADS": "2", "NUMBA_NUM_THREADS": "2", **extra}
+                              ).stdout.split() for _ in range(repeats)]
+        print(f"  {label}: layer {out[0][0]}, " + ", ".join(o[1] for o in out) + " s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--idle-cpu", action="store_true", help="only measure the CPU an idle pool burns, per policy")
     ap.add_argument("--steps", type=int, default=1500, help="valve steps per run (the gain env runs a tenth)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=DEFAULT_SETTINGS,
@@ -93,6 +118,9 @@ def main() -> None:
     args = ap.parse_args()
     if args.steps < 1 or args.repeats < 1:
         ap.error(f"--steps {args.steps} and --repeats {args.repeats}: each must be >= 1")
+    if args.idle_cpu:
+        idle_cpu(args.repeats)
+        return
     names = ["serial"] + [s for s in args.settings if s != "serial"]
     for load in args.loads:
         stop, hogs = mp.Event(), []

@@ -110,8 +110,13 @@ READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
            "tasks.yaml": ["tasks"],
            "env/startup.yaml": ["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios",
                                 "--quiet"],
-           "control/startup.yaml": ["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--no-scenarios",
-                                    "--quiet"],
+           "control/startup.yaml": ["benchmark", "--env-version", "v0", "--controllers", "pid-robust", "--episodes",
+                                    "2", "--no-scenarios", "--quiet"],
+           "control/v1/startup.yaml": ["benchmark", "--controllers", "pid-robust", "--episodes", "2",
+                                       "--no-scenarios", "--quiet"],
+           "env/v1/loop.yaml": ["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios",
+                                "--quiet"],
+           "plant/commissioned.yaml": ["simulate", "--preset", "commissioned", "--t-end", "0.2"],
            "agents/ppo.yml": ["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"]}
 
 

@@ -8,7 +8,10 @@ from millvib_env import MillParams, PIDGains
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.plant.integrate import simulate, simulate_batch
 
-T_CASES = 0.3  # s: covers the paper's transients and tens of limit-cycle periods
+#: s: covers the paper's transients and tens of limit-cycle periods (the shortest record that still has a
+#: severity and a motion class; the reference solver, scipy's LSODA calling Python per step, costs 60 ms of CPU
+#: per simulated ms here, so the span is what these checks cost)
+T_CASES = 0.15
 
 
 def peak_error(a, b):
@@ -19,8 +22,8 @@ def peak_error(a, b):
 def test_reference_agrees_with_an_independent_method_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
-    lsoda = simulate_batch(params, gains, 0.2, method="reference", rtol=1e-10)
-    radau = simulate_batch(params, gains, 0.2, method="reference", ivp_method="Radau", rtol=1e-10)
+    lsoda = simulate_batch(params, gains, 0.1, method="reference", rtol=1e-10)
+    radau = simulate_batch(params, gains, 0.1, method="reference", ivp_method="Radau", rtol=1e-10)
     for (label, _, _), a, b in zip(paper_cases, lsoda, radau):
         assert not a.diverged and not b.diverged
         assert peak_error(a, b) <= 1e-6, label
@@ -30,7 +33,7 @@ def test_fast_matches_reference_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
     fast = simulate_batch(params, gains, T_CASES)
-    ref = simulate_batch(params, gains, T_CASES, method="reference", rtol=1e-10)
+    ref = simulate_batch(params, gains, T_CASES, method="reference", rtol=1e-9)
     for (label, _, _), f, r in zip(paper_cases, fast, ref):
         assert peak_error(f, r) <= 1e-3, label
         assert f.severity() == pytest.approx(r.severity(), rel=1e-3), label
@@ -38,7 +41,7 @@ def test_fast_matches_reference_on_the_paper_cases(paper_cases):
 
 @pytest.mark.slow
 def test_fast_matches_reference_on_random_draws_including_unstable_ones(random_draws):
-    params, gains = random_draws
+    params, gains = (d[:24] for d in random_draws)  # 24 draws: 6 of them in the unstable corner
     fast = simulate_batch(params, gains, T_CASES)
     ref = simulate_batch(params, gains, T_CASES, method="reference", rtol=1e-9)
     unsettled = 0

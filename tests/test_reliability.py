@@ -246,10 +246,10 @@ def test_resume_falls_back_to_the_last_intact_checkpoint_and_keeps_the_evaluatio
     kw = dict(config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2,
               checkpoint_freq=128, progress=False)
     train("ppo", seed=2, **kw)
-    ckpts = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v0_s2" / "checkpoints"
+    ckpts = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v1_s2" / "checkpoints"
     newest = max(ckpts.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]))
     newest.write_bytes(newest.read_bytes()[:100])  # truncated by a killed run
-    evals = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v0_s2" / "eval" / "evaluations.npz"
+    evals = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v1_s2" / "eval" / "evaluations.npz"
     before = len(np.load(evals)["timesteps"])
     card = train("ppo", seed=2, n_timesteps=512, resume=True, **kw)
     assert "cannot be loaded" in capsys.readouterr().err

@@ -108,19 +108,28 @@ def test_fast_kernel_matches_the_reference_through_a_plant_change():
     assert after > 3 * before
 
 
-def _same(actual, saved) -> bool:
-    """Equal to the saved trajectory up to floating-point rounding: the data were written on another
-    processor, and a different libm or FMA contraction may change the last bits, never more than
-    1e-7 of the signal's range (a feature that leaked into these runs would move them by O(1))."""
+def _same(actual, saved, tol: float) -> bool:
+    """Equal to the saved trajectory within `tol` of the signal's range (a feature that leaked into these
+    runs would move them by O(1) of it)."""
     actual, saved = np.asarray(actual, float), np.asarray(saved, float)
     scale = max(float(np.ptp(saved)), float(np.abs(saved).max()), 1e-30)
-    return actual.shape == saved.shape and bool(np.all(np.abs(actual - saved) <= 1e-7 * scale))
+    return actual.shape == saved.shape and bool(np.all(np.abs(actual - saved) <= tol * scale))
+
+
+#: the tolerances against data saved on another processor. Trajectories: the fast integrator runs at
+#: rtol 1e-6, and another libm or FMA contraction can flip a step's acceptance, which moves a trajectory by
+#: the integrator's tolerance, not by one rounding; 1e-4 of the range is a hundred times that and four
+#: decades below a feature's effect. Observations and rewards: numpy's transcendental functions round
+#: differently on another CPU (the reward filter's design through scipy's butter, the signed-log channels);
+#: with numpy's SIMD held to the baseline they moved by 1.4e-7 (observations) and 3.4e-7 (rewards) of their
+#: range here (`../shared/tools/other-machine`), so 1e-5 leaves a factor of 30.
+SIM_TOL, ENV_TOL = 1e-4, 1e-5
 
 
 def test_pressure_feedback_off_reproduces_the_earlier_trajectories():
-    # pressure feedback, the plant change and the force feedforward are off by default and their terms
-    # are skipped, so these runs are the ones saved before they were added (bit for bit on the machine
-    # that saved them; to rounding on any other)
+    # pressure feedback, the plant change, the force feedforward and the valve's dynamics are off by default
+    # and their terms are skipped, so these v0 runs are the ones saved before they were added (bit for bit on
+    # the machine that saved them; within the integrator's and numpy's rounding on any other)
     from pathlib import Path
 
     ref = np.load(Path(__file__).parent / "data" / "trajectories_v0.npz")
@@ -129,7 +138,7 @@ def test_pressure_feedback_off_reproduces_the_earlier_trajectories():
     for i, (p, g) in enumerate(cases):
         r = simulate(p, g, 0.2)
         for q in ("x", "pL", "u"):
-            assert _same(getattr(r, q)[::10], ref[f"sim{i}_{q}"]), (i, q)
+            assert _same(getattr(r, q)[::10], ref[f"sim{i}_{q}"], SIM_TOL), (i, q)
     for env_id, kw in (("MillVib-GainSchedule-v0", {}), ("MillVib-Valve-v0", {"residual": True})):
         env = gym.make(env_id, **kw)
         obs, _ = env.reset(seed=3)
@@ -140,8 +149,8 @@ def test_pressure_feedback_off_reproduces_the_earlier_trajectories():
             obs_l.append(obs)
             rew.append(r)
         key = env_id.split("-")[1]
-        assert _same(np.array(obs_l), ref[f"env_{key}_obs"])
-        assert _same(np.array(rew), ref[f"env_{key}_rew"])
+        assert _same(np.array(obs_l), ref[f"env_{key}_obs"], ENV_TOL)
+        assert _same(np.array(rew), ref[f"env_{key}_rew"], ENV_TOL)
 
 
 def test_pressure_feedback_damps_the_hydraulic_resonance():

@@ -53,37 +53,32 @@ def test_fork_vector_env_steps_after_the_parent_used_threads_and_torch():
     assert run.returncode == 0 and "ok" in run.stdout, run.stderr[-2000:]
 
 
-_IDLE_CPU = textwrap.dedent("""
-    import os, sys, time
+_POOL_SETTINGS = textwrap.dedent("""
+    import os, sys
     assert "numba" not in sys.modules
-    import numpy as np, millvib_env, numba
+    import millvib_env, numba
     from numba.np.ufunc import parallel
     policy = os.environ.get("OMP_WAIT_POLICY")
     started_before = parallel._is_initialized          # the pool must not exist yet when the policy is set
-    venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 16, seed=0, monitor=False)
-    venv.reset(); venv.step(np.zeros((16, 3)))         # a threaded batch: the pool starts here
-    layer = numba.threading_layer()
-    t0 = time.process_time(); time.sleep(0.5); idle = time.process_time() - t0   # CPU burnt while idle
-    print(policy, started_before, layer, numba.get_num_threads(), f"{idle:.3f}")
+    print(policy, started_before, numba.config.THREADING_LAYER, numba.config.NUMBA_NUM_THREADS)
 """)
 
 
-def _idle_cpu(**env) -> tuple[str, bool, str, int, float]:
-    run = subprocess.run([sys.executable, "-c", _IDLE_CPU], capture_output=True, text=True, timeout=240,
+def _pool_settings(**env) -> tuple[str, bool, str, int]:
+    """In a fresh process that imports the package: the wait policy, whether numba's pool had started
+    when it was set, the threading layer asked for and the thread count."""
+    run = subprocess.run([sys.executable, "-c", _POOL_SETTINGS], capture_output=True, text=True, timeout=240,
                          env={**{k: v for k, v in __import__("os").environ.items() if k != "OMP_WAIT_POLICY"},
                               "MILLVIB_NUM_THREADS": "2", "NUMBA_NUM_THREADS": "2", **env})
     assert run.returncode == 0, run.stderr[-2000:]
-    policy, started, layer, n, idle = run.stdout.split()
-    return policy, started == "True", layer, int(n), float(idle)
+    policy, started, layer, n = run.stdout.split()
+    return policy, started == "True", layer, int(n)
 
 
-@pytest.mark.slow
-def test_idle_plant_threads_sleep_because_the_policy_is_set_before_the_pool_starts():
-    policy, started_before, layer, n, idle = _idle_cpu()
+def test_the_wait_policy_is_set_before_numbas_pool_starts_and_a_users_setting_is_kept():
+    # that idle threads then sleep (0.001 s of CPU in a 0.5 s sleep, against 0.50 s when spinning) is a
+    # timing, which depends on what else the machine runs: `python scripts/thread_bench.py --idle-cpu` measures it
+    policy, started_before, layer, n = _pool_settings()
     assert policy == "PASSIVE" and not started_before and n == 2
-    if layer != "omp":
-        pytest.skip(f"numba's threading layer here is {layer!r}, not OpenMP: the wait policy does not apply")
-    # measured here: 0.001 s of CPU in a 0.5 s sleep; spinning threads burn 0.50 s (below)
-    assert idle < 0.1
-    user_policy, _, _, _, spinning = _idle_cpu(OMP_WAIT_POLICY="ACTIVE")  # a user's setting is kept ...
-    assert user_policy == "ACTIVE" and spinning > 0.25  # ... and the measurement sees spinning threads
+    user_policy, started_before, _, _ = _pool_settings(OMP_WAIT_POLICY="ACTIVE")
+    assert user_policy == "ACTIVE" and not started_before

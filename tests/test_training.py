@@ -20,7 +20,7 @@ SCHEMA = {"severity_mean", "severity_median", "severity_p95", "tracking_rms_um_m
           "episodes"}
 
 TINY = """
-MillVib-GainSchedule-v0:
+MillVib-GainSchedule-v1:
   n_envs: 4
   n_timesteps: 256
   policy: {policy}
@@ -159,7 +159,7 @@ def test_seeds_train_in_local_processes_each_with_its_card(tmp_path):
     assert [c["seed"] for c in cards] == [4, 5]
     for s in (4, 5):
         assert (tmp_path / "agent" / f"seed-{s}" / "card.json").exists()
-        assert (tmp_path / "runs" / f"ppo_MillVib-GainSchedule-v0_s{s}" / "card.json").exists()
+        assert (tmp_path / "runs" / f"ppo_MillVib-GainSchedule-v1_s{s}" / "card.json").exists()
     assert agent_seeds(str(tmp_path / "agent")) == [4, 5]
     two = load_controller(str(tmp_path / "agent"), seed=5)
     assert two.seed == 5 and two.name == "agent"

@@ -38,15 +38,18 @@ def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_
     from millvib_env._paths import config_dir
     from millvib_env.cli import main as cli_main
 
-    shipped = {p.name: p.read_bytes() for p in (config_dir() / "control").glob("*.yaml")}
+    def files():
+        return {str(p.relative_to(config_dir())): p.read_bytes() for p in (config_dir() / "control").rglob("*.yaml")}
+
+    shipped = files()
     out = tmp_path / "rolling.yaml"
-    rc = cli_main(["tune", "--task", "rolling", "--only", "pid-robust", "--optuna", f"journal:{tmp_path / 'j.log'}",
-                   "--trials", "2", "--out", str(out), "--quiet"])
+    rc = cli_main(["tune", "--task", "rolling", "--env-version", "v0", "--only", "pid-robust", "--optuna",
+                   f"journal:{tmp_path / 'j.log'}", "--trials", "2", "--out", str(out), "--quiet"])
     assert rc == 0
-    assert {p.name: p.read_bytes() for p in (config_dir() / "control").glob("*.yaml")} == shipped
+    assert files() == shipped
     printed = capsys.readouterr().out
     tuned = yaml.safe_load(out.read_text())
-    ours = yaml.safe_load(shipped["rolling.yaml"])
+    ours = yaml.safe_load(shipped["control/rolling.yaml"])
     if "kept the existing entry" in printed:  # a 2-trial study is worse than the shipped tuning
         assert tuned["pid-robust"] == ours["pid-robust"]
     else:

@@ -9,10 +9,10 @@ pytest.importorskip("rl_zoo3")
 
 from millvib_env._paths import config_dir  # noqa: E402
 
-G, V = "MillVib-GainSchedule-v0", "MillVib-Valve-v0"
+G, V, G0 = "MillVib-GainSchedule-v1", "MillVib-Valve-v1", "MillVib-GainSchedule-v0"
 CASES = [("ppo", "ppo.yml", "n_envs:2 n_steps:64 batch_size:64 n_epochs:1", G),
          ("sac", "sac.yml", "n_envs:2 learning_starts:64 batch_size:32 buffer_size:1000", G),
-         ("ppo_lstm", "ppo_lstm.yml", "n_envs:2 n_steps:64 batch_size:64 n_epochs:1", G),
+         ("ppo_lstm", "ppo_lstm.yml", "n_envs:2 n_steps:64 batch_size:64 n_epochs:1", G0),
          # a residual on pid-pf-ff, named in the file: the environment resolves the name itself
          ("ppo", "pf/ppo.yml", "n_envs:2 n_steps:64 batch_size:64 n_epochs:1", V)]
 

@@ -17,15 +17,17 @@ __all__ = ["MillParams", "PIDGains", "PAPER_GAINS", "load_preset", "__version__"
 
 
 def _register_envs() -> None:
-    """Register the two ids. The environments truncate their episodes themselves (after the
-    config's episode_s), so no TimeLimit is registered: one would cut a 1 s `rolling` episode at
-    the 0.5 s `startup` length."""
+    """Register the ids: two environments in two versions (v0: the paper's analog loop; v1: the loop as
+    commissioned). The environments truncate their episodes themselves (after the config's episode_s),
+    so no TimeLimit is registered: one would cut a 1 s `rolling` episode at the 0.5 s `startup` length."""
     import gymnasium
 
-    for env_id, entry in (("MillVib-GainSchedule-v0", "millvib_env.envs.base:GainScheduleEnv"),
-                          ("MillVib-Valve-v0", "millvib_env.envs.base:ValveEnv")):
-        if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=entry)
+    for name, entry in (("GainSchedule", "millvib_env.envs.base:GainScheduleEnv"),
+                        ("Valve", "millvib_env.envs.base:ValveEnv")):
+        for version in ("v0", "v1"):
+            env_id = f"MillVib-{name}-{version}"
+            if env_id not in gymnasium.registry:
+                gymnasium.register(id=env_id, entry_point=entry, kwargs={"env_version": version})
 
 
 _register_envs()

@@ -319,13 +319,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--from", dest="from_task", metavar="TASK",
                    help="take pid-oracle, lqr-oracle and pid-pf-oracle from this task instead of tuning them")
     p.add_argument("--grid", type=int, default=5, help="oracle grid points per axis (default 5)")
+    p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
+                   help="the loop the gains are tuned on: v1, the loop as commissioned (default; written to "
+                        "configs/control/v1/<task>.yaml), or v0, the paper's analog loop (configs/control/<task>.yaml)")
     p.add_argument("--optuna", metavar="STORAGE", help="tune pid-nominal and pid-robust by an Optuna study in "
                                                         "STORAGE (journal:PATH or a database URL), shared by every "
                                                         "process that names it")
     p.add_argument("--trials", type=int, default=60, help="Optuna trials this process runs (default 60)")
     p.add_argument("--out", metavar="FILE", help="write the task's control config with the tuned entries to FILE")
     p.add_argument("--write-config", action="store_true",
-                   help="write into the shipped configs/control/<task>.yaml instead")
+                   help="write into the shipped configs/control/[v1/]<task>.yaml instead")
     p.add_argument("--force", action="store_true",
                    help="replace entries even where this run's tuning cost is worse than theirs")
     p.add_argument("--quiet", action="store_true", help="no progress output")
@@ -340,6 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", nargs="+", default=["c1", "Ct"], metavar="NAME",
                    help="parameters to sweep: c1 Ct beta_e mt FL (default c1 Ct)")
     p.add_argument("--task", default="startup", help="task (default startup)")
+    p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
+                   help="the loop the baselines run on: v1, as commissioned (default), or v0, the paper's analog loop")
     p.add_argument("--seed", type=int, default=None, help="first plant seed (default: 40000 into the task's "
                                                           "held-out range)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced as a whole)")

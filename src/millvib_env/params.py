@@ -34,6 +34,10 @@ __all__ = [
 ]
 
 
+#: fields whose "none" is infinity: the paper's amplifier and valve have no limit
+_MAY_BE_INF = ("u_max", "xv_max")
+
+
 def _p(default: float, unit: str, doc: str, rule: str, studied: tuple[float, float] | None = None) -> Any:
     meta = {"unit": unit, "doc": doc, "rule": rule}
     if studied is not None:
@@ -92,6 +96,13 @@ class MillParams:
     u_max: float = _p(
         math.inf, "V", "servo-amplifier input saturation |u| <= u_max (paper: none, inf)",
         "> 0 (inf allowed)")
+    valve_wn_hz: float = _p(
+        0.0, "Hz", "servo-valve spool natural frequency (second-order lag from the command to the spool; "
+        "0 = the paper's ideal proportional valve xv = Ksv Kp1 u)", ">= 0")
+    valve_zeta: float = _p(0.7, "-", "servo-valve spool damping ratio (used when valve_wn_hz > 0)", "> 0")
+    xv_max: float = _p(
+        math.inf, "m", "spool stroke: the port opening is limited to |xv| <= xv_max (paper: none, inf)",
+        "> 0 (inf allowed)")
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -101,7 +112,7 @@ class MillParams:
                     f"MillParams.{f.name} = {value!r} is invalid: must be a real number ({f.metadata['rule']})")
             value = float(value)
             object.__setattr__(self, f.name, value)
-            if math.isnan(value) or (math.isinf(value) and f.name != "u_max"):
+            if math.isnan(value) or (math.isinf(value) and f.name not in _MAY_BE_INF):
                 raise ValueError(
                     f"MillParams.{f.name} = {value!r} is invalid: must be finite ({f.metadata['rule']})")
         for name, ok in self._checks():
@@ -124,7 +135,18 @@ class MillParams:
             ("pulse_amp", 0 <= self.pulse_amp < 1), ("pulse_freq", self.pulse_freq >= 0),
             ("pulse_h2", self.pulse_amp * (1 + h) < 1), ("pulse_h3", self.pulse_amp * (1 + h) < 1),
             ("dp_reg", self.dp_reg > 0), ("u_max", self.u_max > 0),
+            ("valve_wn_hz", self.valve_wn_hz >= 0), ("valve_zeta", self.valve_zeta > 0), ("xv_max", self.xv_max > 0),
         ]
+
+    @property
+    def xv_per_volt(self) -> float:
+        """Spool stroke per volt of command, Ksv Kp1 (m/V): 1.25e-4 for Table 1."""
+        return self.Ksv * self.Kp1
+
+    @property
+    def ideal_valve(self) -> bool:
+        """True for the paper's valve: the spool follows the command at once (valve_wn_hz = 0)."""
+        return self.valve_wn_hz == 0.0
 
     # -- conversions -------------------------------------------------------------------------
     def replace(self, **changes: float) -> "MillParams":

@@ -34,10 +34,10 @@ from scipy import optimize
 
 from millvib_env._checks import instance, real, reals
 from millvib_env.params import MillParams, PIDGains
-from millvib_env.plant.integrate import state_scale
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (IPL, IUI, IV, IX, IZ, NY, balanced_pressure, drive_vector, pack,
-                                     settled_state)
+from millvib_env.plant.model import (A_XV, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES, VALVE_STATES,
+                                     balanced_pressure, drive_vector, pack, plant_rhs, settled_state,
+                                     state_scale)
 
 __all__ = ["OperatingPoint", "operating_point", "jacobian", "spectral_abscissa", "critical_kp",
            "stability_map", "StateSpace", "linearize"]
@@ -94,10 +94,12 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
         raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
     if integral not in ("frozen", "settled"):
         raise ValueError(f"integral = {integral!r} is invalid: use 'frozen' or 'settled'")
-    f = _rhs(params, gains, xd)
-    p_mean = pack(params.replace(pulse_amp=0.0))
+    ideal = params.replace(valve_wn_hz=0.0, xv_max=math.inf)  # at rest the spool sits at its command
+    f = _rhs(ideal, gains, xd)
+    p_mean = pack(ideal.replace(pulse_amp=0.0))
     c = drive_vector(gains, xd=xd)
-    y = np.array([xd, 0.0, 0.0, 0.0 if friction == "stick" else params.fs / params.sigma0, uI])
+    y = np.zeros(NY)
+    y[IX], y[IZ], y[IUI] = xd, 0.0 if friction == "stick" else params.fs / params.sigma0, uI
 
     def at(value: float) -> np.ndarray:
         yy = y.copy()
@@ -112,7 +114,12 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
         root = _bracket_root(flow_residual, xd, -params.L1, params.L - params.L1)
     else:
         root = _bracket_root(flow_residual, 0.0, -1e6, 1e6)
-    return OperatingPoint(y=at(root), xd=xd, friction=friction, integral=integral)
+    y_op = at(root)
+    if not params.ideal_valve:
+        aux = np.empty(NAUX)
+        plant_rhs(0.0, y_op, p_mean, c, np.empty(NY), aux)
+        y_op[IXS] = aux[A_XV]
+    return OperatingPoint(y=y_op, xd=xd, friction=friction, integral=integral)
 
 
 def _numerical_jacobian(f, y0: np.ndarray, scale: np.ndarray, friction: str) -> np.ndarray:
@@ -158,7 +165,8 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
     """
     J = _numerical_jacobian(_rhs(params, gains, op.xd), op.y, state_scale(params), op.friction)
     keep = [i for i in range(NY)
-            if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))]
+            if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))
+            and not (i in VALVE_STATES and params.ideal_valve)]
     return J[np.ix_(keep, keep)]
 
 
@@ -225,11 +233,12 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
     J = _numerical_jacobian(f_of(u0), y0, scale, friction)
     du = 1e-3 * max(abs(u0), 1.0)
     b = (f_of(u0 + du)(y0) - f_of(u0 - du)(y0)) / (2 * du)
-    keep = [IX, IV, IPL]
+    keep = [IX, IV, IPL] + ([] if params.ideal_valve else list(VALVE_STATES))
     A = J[np.ix_(keep, keep)]
     B = b[keep][:, None]
     op = OperatingPoint(y=y0, xd=xd, friction=friction, integral="settled")
-    return StateSpace(A=A, B=B, C=np.eye(3), D=np.zeros((3, 1)), op=op)
+    return StateSpace(A=A, B=B, C=np.eye(len(keep))[:3], D=np.zeros((3, 1)), op=op,
+                      states=tuple(STATE_NAMES[i] for i in keep))
 
 
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",

@@ -160,17 +160,27 @@ def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
     return dict(sorted(found.items()))
 
 
-def _agent_task(folder: Path) -> str:
+def _agent_card_key(folder: Path, key: str, default: str) -> str:
     first = next(iter(agent_seed_folders(folder).values()))
     try:
-        return json.loads((first / "card.json").read_text()).get("task", "startup")
+        value = json.loads((first / "card.json").read_text()).get(key, default)
     except (ValueError, AttributeError) as err:
         raise ValueError(f"{first / 'card.json'} is not a valid model card: {err}") from None
+    return value if isinstance(value, str) else default
 
 
-def list_agents(task: str | None = None) -> list[str]:
+def _agent_task(folder: Path) -> str:
+    return _agent_card_key(folder, "task", "startup")
+
+
+def _agent_version(folder: Path) -> str:
+    env_id = _agent_card_key(folder, "env_id", "MillVib-GainSchedule-v0")
+    return env_id.rsplit("-", 1)[-1]
+
+
+def list_agents(task: str | None = None, version: str | None = None) -> list[str]:
     """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
-    optionally only those trained on `task`."""
+    optionally only those trained on `task` and those trained in environment version `version`."""
     root = agents_dir()
     if not root.is_dir():
         return []
@@ -178,6 +188,8 @@ def list_agents(task: str | None = None) -> list[str]:
     for p in sorted(root.iterdir()):
         if p.is_dir() and agent_seed_folders(p):
             if task is not None and _agent_task(p) != get_task(task).name:
+                continue
+            if version is not None and _agent_version(p) != version:
                 continue
             names.append(p.name)
     return names

@@ -9,37 +9,42 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller, GainTable
 from millvib_env.control.policies import BASELINES, FixedGainPolicy, LQRPolicy, OraclePolicy, baseline_names
 from millvib_env.envs.actions import GainMap, task_gain_map
-from millvib_env.envs.config import EnvConfig, task_config
+from millvib_env.envs.batch import env_id_for
+from millvib_env.envs.config import ENV_VERSIONS, EnvConfig, task_config
+from millvib_env.envs.config import control_config_path as _config_path
 from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import get_task
 
-__all__ = ["load_controller", "load_control_config", "control_entry", "oracle_table"]
+__all__ = ["load_controller", "load_control_config", "control_entry", "control_config_path", "oracle_table"]
 
 
-def load_control_config(task: str = "startup") -> dict[str, Any]:
-    """configs/control/<task>.yaml: the task's tuned baselines (an entry may say `from_task: NAME`)."""
-    name = get_task(task).name
-    path = config_dir() / "control" / f"{name}.yaml"
+def control_config_path(task: str, version: str = "v0"):
+    """Where a task's tuned baselines live (`envs.config.control_config_path`), for a task name or alias."""
+    return _config_path(get_task(task).name, version)
+
+
+def load_control_config(task: str = "startup", version: str = "v0") -> dict[str, Any]:
+    """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
+    path = control_config_path(task, version)
     if not path.is_file():
-        raise ValueError(f"no tuned baselines for task {name!r}: {path} is missing (run millvib tune "
-                         f"--task {name} --write-config)")
+        raise ValueError(f"no tuned baselines for task {get_task(task).name!r} in {version}: {path} is missing (run "
+                         f"millvib tune --task {get_task(task).name} --env-version {version} --write-config)")
     return load_yaml(path, "control config", mapping=True)
 
 
-def control_entry(task: str, name: str) -> dict:
-    data = load_control_config(task)
+def control_entry(task: str, name: str, version: str = "v0") -> dict:
+    data = load_control_config(task, version)
     if name not in data:
-        raise ValueError(f"configs/control/{get_task(task).name}.yaml has no entry {name!r} (run millvib tune "
-                         f"--task {get_task(task).name} --only {name} --write-config)")
+        raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
+                         f"{get_task(task).name} --env-version {version} --only {name} --write-config)")
     entry = data[name]
     if "from_task" in entry:
-        return control_entry(entry["from_task"], name)
+        return control_entry(entry["from_task"], name, version)
     return entry
 
 
@@ -51,17 +56,20 @@ def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
                          f"configs/control/{get_task(task).name}.yaml {name}.gains")
 
 
-def oracle_table(task: str, name: str = "pid-oracle") -> GainTable:
-    entry = control_entry(task, name)
+def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> GainTable:
+    entry = control_entry(task, name, version)
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
 def load_controller(name: str, task: str | None = None, config: EnvConfig | None = None,
-                    seed: int | None = None) -> Controller:
+                    seed: int | None = None, version: str = "v0") -> Controller:
     """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
     an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest).
     `task` defaults to the agent's own (startup for a baseline); an agent trained on another task
-    than the one asked for is refused."""
+    than the one asked for is refused. A baseline runs in environment version `version` with the gains
+    tuned for it (`control_config_path`); an agent runs in the version it was trained in."""
+    if version not in ENV_VERSIONS:
+        raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
     if not isinstance(name, str) or not name:
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
     if config is not None and not isinstance(config, EnvConfig):
@@ -81,25 +89,26 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
         return agent
     task = get_task(task if task is not None else "startup").name
     gain_map = GainMap.from_config(config) if config is not None else task_gain_map(task)
+    cfg = config or task_config(task, version)
     ctrl: Controller
     if name == "pid-paper":
         ctrl = FixedGainPolicy(name, PAPER_GAINS, gain_map, BASELINES[name])
     elif name in ("pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"):
-        entry = control_entry(task, name)
+        entry = control_entry(task, name, version)
         ctrl = FixedGainPolicy(name, _checked_gains(task, name, entry), gain_map, entry.get("how", ""))
     elif name in ("pid-oracle", "pid-pf-oracle"):
-        ctrl = OraclePolicy(oracle_table(task, name), gain_map, name, task)
+        ctrl = OraclePolicy(oracle_table(task, name, version), gain_map, name, task)
     elif name == "lqr-oracle":
         from millvib_env.control.lqr import LQRWeights
 
-        entry = control_entry(task, name)
-        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), task_config(task).base_params, task)
+        entry = control_entry(task, name, version)
+        ctrl = LQRPolicy(LQRWeights(**entry["weights"]), cfg.base_params, task, loop=cfg.loop)
     elif name == "pid-adaptive":
         from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
-        entry = control_entry(task, name)
-        cfg = config or task_config(task)
-        ctrl = AdaptivePolicy(oracle_table(task), gain_map, EstimatorSettings(**entry["estimator"]), cfg.base_params,
-                              sample_rate_hz=cfg.sample_rate_hz)
+        entry = control_entry(task, name, version)
+        ctrl = AdaptivePolicy(oracle_table(task, version=version), gain_map, EstimatorSettings(**entry["estimator"]),
+                              cfg.base_params, sample_rate_hz=cfg.sample_rate_hz)
     ctrl.task = task
+    ctrl.env_id = env_id_for("gain", version)
     return ctrl

@@ -16,12 +16,13 @@ tuned per task on its tuning seeds (configs/control/<task>.yaml).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import linalg
 
-from millvib_env._checks import instance
+from millvib_env._checks import instance, real
 from millvib_env.analysis.linear import linearize
 from millvib_env.threads import one_blas_thread
 from millvib_env.params import MillParams
@@ -56,10 +57,19 @@ class LQRWeights:
             raise ValueError(f"LQRWeights.friction = {self.friction!r} is invalid: 'stick' or 'sliding'")
 
 
-def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0):
-    """(K, A_cl, A_aug, B_aug) of the scaled-coordinate design, K in SI units (V per unit state)."""
+def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0, dt_s: float | None = None):
+    """(K, A_cl, A_aug, B_aug) of the scaled-coordinate design, K in SI units (V per unit state).
+
+    The model is the plant's linearisation with the paper's ideal valve (the PID + pressure-feedback
+    structure has no spool feedback to give). With `dt_s` the design is discrete-time at that sample
+    period (the loop as commissioned: the augmented model sampled with a zero-order hold, and the
+    discrete Riccati equation); A_cl is then the discrete closed loop. The loop's computation delay
+    and the valve's lag are not in the model."""
     instance("weights", weights, LQRWeights, "an LQRWeights")
-    ss = linearize(params, xd, friction=weights.friction)
+    instance("params", params, MillParams, "a MillParams")
+    if dt_s is not None:
+        dt_s = real("dt_s", dt_s, lo=0.0, lo_open=True, hi=1.0)
+    ss = linearize(params.replace(valve_wn_hz=0.0, xv_max=math.inf), xd, friction=weights.friction)
     A = np.zeros((4, 4))
     A[:3, :3] = ss.A
     A[3, 0] = -1.0  # d xi / dt = e = -(x - xd)
@@ -71,13 +81,26 @@ def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0):
     Q = np.diag([weights.q_x, weights.q_v, weights.q_p, weights.q_i])
     R = np.array([[weights.r]])
     with one_blas_thread():  # a 4 x 4 Riccati solve: BLAS threads cost 20x more than they give under load
-        P = linalg.solve_continuous_are(A_s, B_s, Q, R)
-        K_s = np.linalg.solve(R, B_s.T @ P)
+        if dt_s is None:
+            P = linalg.solve_continuous_are(A_s, B_s, Q, R)
+            K_s = np.linalg.solve(R, B_s.T @ P)
+        else:  # sampled with a zero-order hold: the exponential of [[A, B], [0, 0]] dt
+            n = A_s.shape[0]
+            M = np.zeros((n + 1, n + 1))
+            M[:n, :n], M[:n, n:] = A_s, B_s
+            E = linalg.expm(M * dt_s)
+            A_s, B_s = E[:n, :n], E[:n, n:]
+            P = linalg.solve_discrete_are(A_s, B_s, Q * dt_s, R * dt_s)
+            K_s = np.linalg.solve(R * dt_s + B_s.T @ P @ B_s, B_s.T @ P @ A_s)
     K = (U_SCALE_V * K_s / T[None, :])[0]
-    return K, A - B @ K[None, :], A, B
+    if dt_s is None:
+        return K, A - B @ K[None, :], A, B
+    A_d, B_d = A_s * T[:, None] / T[None, :], B_s * T[:, None] / U_SCALE_V
+    return K, A_d - B_d @ K[None, :], A_d, B_d
 
 
-def lqr_gains(params: MillParams, weights: LQRWeights, xd: float = 0.0) -> np.ndarray:
-    """(KP, KI, KD, KPL) of the LQR design for `params`; KP may be negative (see `LQRPolicy`)."""
-    K, _, _, _ = lqr_design(params, weights, xd)
+def lqr_gains(params: MillParams, weights: LQRWeights, xd: float = 0.0, dt_s: float | None = None) -> np.ndarray:
+    """(KP, KI, KD, KPL) of the LQR design for `params` (discrete-time at `dt_s` where given); KP may be
+    negative (see `LQRPolicy`)."""
+    K, _, _, _ = lqr_design(params, weights, xd, dt_s)
     return np.array([K[0], -K[3], K[1], K[2]])

@@ -104,10 +104,12 @@ class LQRPolicy(PerEnvGains):
     ENV_KWARGS = {"actions": {"pressure_feedback": True, "scale": "linear", "kp": [-2.0e7, 2.0e7],
                               "ki": [0.0, 1.0e9], "kd": [0.0, 300.0], "kpl": [0.0, 1.0e-2]}}
 
-    def __init__(self, weights, base_params, task: str):
+    def __init__(self, weights, base_params, task: str, loop=None):
         from millvib_env.control.lqr import lqr_gains
 
         self.weights, self.base_params = weights, base_params
+        #: the sampled loop's period (s), for a discrete-time design; None: the continuous design (v0)
+        self.dt_s = None if loop is None else loop.dt_s
         self.env_kwargs = dict(self.ENV_KWARGS)
         self.gain_map = GainMap.from_config(load_env_config(get_task(task).config, **self.env_kwargs))
         self._lqr = lqr_gains
@@ -115,7 +117,7 @@ class LQRPolicy(PerEnvGains):
         self.clipped = 0
 
     def gains_for(self, c1: float, ct: float) -> np.ndarray:
-        g = self._lqr(self.base_params.replace(c1=c1, Ct=ct), self.weights)
+        g = self._lqr(self.base_params.replace(c1=c1, Ct=ct), self.weights, dt_s=self.dt_s)
         if np.any(g < self.gain_map.lo) or np.any(g > self.gain_map.hi):
             self.clipped += 1
         return g

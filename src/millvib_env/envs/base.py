@@ -21,11 +21,11 @@ class MillVibEnv(gym.Env):
 
     def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 render_mode: str | None = None, **overrides: Any):
+                 render_mode: str | None = None, env_version: str = "v0", **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
-        self.config = load_env_config(config, **overrides)
+        self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase)
         self.action_space = self.core.action_space
@@ -145,11 +145,13 @@ class GainScheduleEnv(MillVibEnv):
 
     ## Starting State
 
-    Task ``startup`` (the default): the paper's: the piston 1 mm from the set-point
+    Task ``startup`` (the default) in v0: the paper's: the piston 1 mm from the set-point
     (``initial.x0_m``, optionally jittered), at rest with zero acceleration (which fixes the chamber
-    pressure), bristles at the static friction fs, zero integral. Tasks ``rolling`` and ``change``
+    pressure), bristles at the static friction fs, zero integral. In v1: settled 0.3 mm out, the set-point
+    then led back to 0 at 2 mm/s (``initial.setpoint_ramp_m_s``). Tasks ``rolling`` and ``change``
     (``initial.settled: true``): settled at the set-point, the integral term already holding the
-    load and feeding the leak. The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0), or
+    load and feeding the leak (in v1 the digital controller's integral term, and the valve's spool at the
+    opening that feeds the leak). The PID starts with the paper's gains (KP = 1e5, KI = 1e-3, KD = 0), or
     with a relative action's base gains.
 
     ## Episode End
@@ -190,9 +192,27 @@ class GainScheduleEnv(MillVibEnv):
 
     ## Version History
 
-    * v0: initial release; tasks, pressure feedback, the plant change, the force feedforward, the
-      relative action, the force observation and the offset penalty added within v0, each off by
-      default (the default episode is unchanged, bit for bit on the machine that saved it).
+    * v1: the loop as commissioned (``gym.make("MillVib-GainSchedule-v1", config="rolling")``; the
+      default of ``millvib benchmark``, ``tune``, ``train`` and ``sweep``). The PID is a digital
+      controller at 2 kHz (``control_dt_s``) outside the plant: it samples a position transducer
+      (0.5 um noise, 0.1 um resolution), a pressure transducer (1 kHz low-pass, 0.05 MPa noise) and the
+      load cells (500 Hz low-pass, 5 kN noise), computes u = KP e + uI - KD v_f - KPL (p_m - pL_ref) +
+      KFF F_m with a filtered derivative of the measured position, saturates it at the amplifier's
+      +-10 V with conditional integration, and holds it one sample late (computation delay). The valve
+      has dynamics (a second-order lag, -90 deg at 150 Hz, damping 0.7) and a spool stroke of 1.25 mm
+      (configs/plant/commissioned.yaml). Ct is drawn up to 1e-10 m^3/(s Pa), where a +-10 V valve can
+      still hold the gap with margin (the paper's 5e-9 needs 180 V). ``startup`` is a gap change under
+      load: settled 0.3 mm out, the set-point led back to 0 at 2 mm/s, as a mill's reference generator
+      does (the paper's 1 mm start holds the chamber above the supply pressure, which no valve can hold;
+      at +-10 V it tested only the valve). An episode that leaves its envelope pays
+      1000 per step not run (`envs.reward.DIVERGED_COST`). The observation's error, velocity,
+      pressure and force are the loop's sampled sensors. Why: under v0 every controller commanded
+      7-70 times the valve's rated stroke, and the verdicts did not hold on a physical loop
+      (configs/env/v1/, docs/loop.md).
+    * v0: the paper's analog loop inside the plant, an ideal valve without limit; tasks, pressure
+      feedback, the plant change, the force feedforward, the relative action, the force observation
+      and the offset penalty added within v0, each off by default (the default episode is unchanged,
+      bit for bit on the machine that saved it).
     """
 
     mode = "gain"
@@ -241,7 +261,11 @@ class ValveEnv(MillVibEnv):
 
     ## Version History
 
-    * v0: initial release.
+    * v1: the loop as commissioned (see `GainScheduleEnv`): the agent's command is added to the digital
+      controller's (residual) or drives the valve alone, every 0.5 ms (the loop's 2 kHz), and is
+      saturated with it at the amplifier's +-10 V; ``u_range_v`` and ``residual_range_v`` keep their
+      meaning. 1000 steps per ``startup`` episode, 2000 on ``rolling`` and ``change``.
+    * v0: initial release (the paper's analog loop, an ideal valve without limit).
     """
 
     mode = "valve"

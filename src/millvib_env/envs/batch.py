@@ -11,19 +11,40 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from millvib_env.envs.config import load_env_config
+from millvib_env.envs.config import ENV_VERSIONS, load_env_config
 from millvib_env.envs.core import MillVibCore
 
-__all__ = ["EpisodeBatch", "ENV_IDS", "env_mode"]
+__all__ = ["EpisodeBatch", "ENV_IDS", "env_mode", "env_version", "env_id_for"]
 
-#: registered id -> the engine's mode
-ENV_IDS = {"MillVib-GainSchedule-v0": "gain", "MillVib-Valve-v0": "valve"}
+#: the environments' names and modes; their ids are ``MillVib-<name>-<version>`` (`envs.config.ENV_VERSIONS`)
+MODES = {"GainSchedule": "gain", "Valve": "valve"}
+#: registered id -> (the engine's mode, the environment's version)
+ENV_IDS = {f"MillVib-{name}-{version}": (mode, version) for name, mode in MODES.items() for version in ENV_VERSIONS}
 
 
-def env_mode(env_id: str) -> str:
+def _entry(env_id: str) -> tuple[str, str]:
     if not isinstance(env_id, str) or env_id not in ENV_IDS:
         raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
     return ENV_IDS[env_id]
+
+
+def env_mode(env_id: str) -> str:
+    """'gain' or 'valve': the engine's mode of a registered id."""
+    return _entry(env_id)[0]
+
+
+def env_version(env_id: str) -> str:
+    """The version of a registered id ('v0' or 'v1')."""
+    return _entry(env_id)[1]
+
+
+def env_id_for(mode: str, version: str) -> str:
+    """The registered id of an engine mode ('gain' or 'valve') in a version."""
+    for env_id, entry in ENV_IDS.items():
+        if entry == (mode, version):
+            return env_id
+    raise ValueError(f"no MillVib environment of mode {mode!r} and version {version!r}; versions: "
+                     f"{list(ENV_VERSIONS)}")
 
 
 class EpisodeBatch:
@@ -32,7 +53,7 @@ class EpisodeBatch:
 
     def __init__(self, env_id: str, n: int, *, config: str | dict | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
-        self.config = load_env_config(config, **overrides)
+        self.config = load_env_config(config, version=env_version(env_id), **overrides)
         self.core = MillVibCore(n, env_mode(env_id), self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase)
         self.n = n

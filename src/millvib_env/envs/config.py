@@ -19,10 +19,18 @@ from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
-__all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "CONFIG_ALIASES"]
+__all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "CONFIG_ALIASES", "ENV_VERSIONS",
+           "DEFAULT_VERSION"]
 
 #: names kept for earlier releases: `default` is the `startup` task's episode
 CONFIG_ALIASES = {"default": "startup"}
+#: the environments' versions. v0: the paper's analog loop inside the plant, an ideal valve without limit
+#: (configs/env/<name>.yaml). v1: the loop as commissioned: a digital controller at the control rate with
+#: sensors in the loop, a servo valve with dynamics and a +-10 V amplifier (configs/env/v1/: `loop.yaml`
+#: over every config, then the task's own `v1/<name>.yaml` where there is one)
+ENV_VERSIONS = ("v0", "v1")
+#: the version `benchmark`, `tune`, `train` and `sweep` use unless told otherwise
+DEFAULT_VERSION = "v1"
 #: episodes longer than this are refused before anything is allocated (the severity record is kept whole)
 MAX_EPISODE_S = 60.0
 #: the shortest episode that has a vibration severity: one period of the band's 10 Hz low edge
@@ -107,6 +115,7 @@ class RewardSettings:
     w_effort: float
     terminal_penalty: float      # subtracted once when an episode leaves the envelope
     w_offset: float = 0.0        # penalty on a relative gain action's distance from its base
+    terminal_per_step: float = 0.0  # ... and this for every step the episode did not run (v1: DIVERGED_COST)
 
 
 @dataclass(frozen=True)
@@ -125,6 +134,8 @@ class InitialSettings:
     x0_m: float = 0.0          # the start's displacement (m)
     x0_jitter_m: float = 0.0   # drawn uniformly within +- this around x0_m (m)
     settled: bool = False      # start from the settled operating point instead
+    setpoint_ramp_m_s: float = 0.0  # > 0: the set-point leads back from x0 to 0 at this rate (m/s), as a
+                                    # mill's position reference generator does; 0: a step (the paper's)
 
 
 @dataclass(frozen=True)
@@ -134,6 +145,15 @@ class EnvConfig:
     raw: dict
     base_params: MillParams
     randomize: tuple[Distribution, ...]
+    version: str = "v0"
+
+    @property
+    def loop(self):
+        """The sampled loop's settings (`loop.LoopSettings`), or None for the analog loop (v0)."""
+        from millvib_env.loop.settings import LoopSettings
+
+        section = self.raw.get("loop")
+        return None if section is None else LoopSettings.from_config(section, 1.0 / self.control_dt_s)
 
     def __getitem__(self, key: str) -> Any:
         return self.raw[key]
@@ -333,24 +353,32 @@ def _decades(path: str, value: Any) -> None:
 NAMED_GAINS = ("pid-paper", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff")
 
 
-def named_gains(name: str, task: str = "startup") -> list[float]:
-    """The gains of the fixed-gain baseline `name` of `task`, from configs/control/<task>.yaml (the
-    paper's PID from MillParams' module), checked: 3-5 finite numbers >= 0."""
+def control_config_path(task: str, version: str = "v0") -> Path:
+    """Where a task's tuned baselines live: configs/control/<task>.yaml for v0 (the analog loop),
+    configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
+    folder = config_dir() / "control"
+    return (folder if version == "v0" else folder / version) / f"{task}.yaml"
+
+
+def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`, from its
+    control config (`control_config_path`; the paper's PID from MillParams' module), checked: 3-5 finite
+    numbers >= 0."""
     from millvib_env.params import PAPER_GAINS
 
     if name not in NAMED_GAINS:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
     if name == "pid-paper":
         return [float(g) for g in PAPER_GAINS.to_array()]
-    path = config_dir() / "control" / f"{task}.yaml"
-    where = f"configs/control/{task}.yaml {name}"
+    path = control_config_path(task, version)
+    where = f"{path.relative_to(config_dir().parent) if path.is_relative_to(config_dir().parent) else path} {name}"
     table = load_yaml(path, "control config")
     entry = table.get(name) if isinstance(table, dict) else None
     if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
             entry["from_task"] != task:
-        return named_gains(name, entry["from_task"])
+        return named_gains(name, entry["from_task"], version)
     return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
-                         f"run millvib tune --task {task} --only {name} --write-config")
+                         f"run millvib tune --task {task} --env-version {version} --only {name} --write-config")
 
 
 def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
@@ -379,28 +407,35 @@ def _task_of(config: Any) -> str:
     return "startup"
 
 
-def _resolve_names(data: dict, task: str) -> None:
+def _resolve_names(data: dict, task: str, version: str = "v0") -> None:
     acts = data.get("actions")
     if not isinstance(acts, dict):
         return
     if isinstance(acts.get("residual_gains"), str) and acts["residual_gains"] in NAMED_GAINS:
-        acts["residual_gains"] = named_gains(acts["residual_gains"], task)
+        acts["residual_gains"] = named_gains(acts["residual_gains"], task, version)
     rel = acts.get("relative")
     if isinstance(rel, dict) and isinstance(rel.get("base"), str):
         if rel["base"] not in NAMED_GAINS:
             _fail("actions.relative.base", rel["base"], f"a list of gains or a named gain set {list(NAMED_GAINS)}")
-        acts["relative"] = {**rel, "base": named_gains(rel["base"], task)}
+        acts["relative"] = {**rel, "base": named_gains(rel["base"], task, version)}
 
 
 _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
     "initial": lambda p, v: _section(p, v, {
         "x0_m": lambda pp, vv: _number(pp, vv, lo=-0.05, hi=0.05), "x0_jitter_m": lambda pp, vv: _number(
-            pp, vv, lo=0.0, hi=0.01), "settled": _bool}),
+            pp, vv, lo=0.0, hi=0.01), "settled": _bool,
+        "setpoint_ramp_m_s": lambda pp, vv: _number(pp, vv, lo=0.0, hi=10.0)}),
+    "loop": _optional(lambda p, v: _section(p, v, {
+        "delay_samples": lambda pp, vv: _number(pp, vv, lo=0, hi=1, integer=True),
+        "derivative_filter_hz": _nonneg,
+        "sensors": lambda pp, vv: _section(pp, vv, {k: _nonneg for k in (
+            "position_noise_m", "position_resolution_m", "pressure_noise_pa", "pressure_cutoff_hz",
+            "force_noise_n", "force_cutoff_hz")})})),
     "disturbances": lambda p, v: _section(p, v, _DISTURBANCES),
     "reward": lambda p, v: _section(p, v, {
         "vibration_scale_mm_s": _pos, "tracking_scale_um": _pos, "vib_time_constant_s": _pos,
         "w_vibration": _nonneg, "w_tracking": _nonneg, "w_effort": _nonneg, "w_offset": _nonneg,
-        "terminal_penalty": _nonneg},
+        "terminal_penalty": _nonneg, "terminal_per_step": _nonneg},
         required=("vibration_scale_mm_s", "tracking_scale_um", "vib_time_constant_s", "w_vibration",
                   "w_tracking", "w_effort", "terminal_penalty")),
     "actions": lambda p, v: _section(p, v, {
@@ -420,6 +455,8 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",
              *_SECTIONS}
+#: top-level keys a config may leave out (their absence is the v0 behaviour)
+_OPTIONAL_KEYS = {"loop"}
 
 
 def _randomize(data: dict, base: MillParams) -> tuple[Distribution, ...]:
@@ -446,26 +483,44 @@ def _randomize(data: dict, base: MillParams) -> tuple[Distribution, ...]:
     return tuple(dists)
 
 
-def load_env_config(config: str | Path | Mapping | None = "startup", **overrides: Any) -> EnvConfig:
+def _read_version(name: str | Path, version: str) -> dict:
+    """A config by name or path, as environment version `version` runs it: v1 lays configs/env/v1/loop.yaml
+    over a named config, then the config's own v1/<name>.yaml where there is one."""
+    data = _read(name)
+    if version == "v1" and isinstance(name, str) and not Path(name).suffix:
+        name = CONFIG_ALIASES.get(name, name)
+        data = _merge(data, _read("v1/loop"))
+        if (config_dir() / "env" / "v1" / f"{name}.yaml").is_file():
+            data = _merge(data, _read(f"v1/{name}"))
+    return data
+
+
+def load_env_config(config: str | Path | Mapping | None = "startup", *, version: str = "v0",
+                    **overrides: Any) -> EnvConfig:
     """Read a config by name (configs/env/<name>.yaml), path or dict and apply keyword overrides.
 
     Nested sections merge: ``reward={"w_effort": 0.0}`` changes one weight; ``randomize`` replaces
-    the whole table. A dict config starts from `startup`.
+    the whole table. A dict config starts from `startup`. `version` (`ENV_VERSIONS`) is the
+    environment's: v1 runs a named config on the loop as commissioned (configs/env/v1/).
     """
+    if version not in ENV_VERSIONS:
+        raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
     if config is None:
         config = "startup"
     if isinstance(config, (str, Path)):
-        data = _read(config)
+        data = _read_version(config, version)
     elif isinstance(config, Mapping):
-        data = _merge(_read("startup"), config)
+        data = _merge(_read_version("startup", version), config)
     else:
         raise ValueError(f"config = {config!r} is invalid: a config name {list_env_configs()}, a path or a dict")
     data = _merge(data, overrides)
-    _resolve_names(data, _task_of(config))
+    for key in _OPTIONAL_KEYS:
+        data.setdefault(key, None)
+    _resolve_names(data, _task_of(config), version)
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown env config key(s) {sorted(unknown)}; known: {sorted(_TOP_KEYS)}")
-    missing = sorted(_TOP_KEYS - set(data))
+    missing = sorted(_TOP_KEYS - _OPTIONAL_KEYS - set(data))
     if missing:
         raise ValueError(f"env config is missing key(s) {missing}")
     _check_timing(data)
@@ -477,7 +532,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", **overrides
                 _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
                       "(or actions.scale: linear)")
     base = _base_params(data["plant"])
-    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base))
+    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base), version=version)
 
 
 def _check_timing(data: dict) -> None:
@@ -515,17 +570,17 @@ def _base_params(plant: Any) -> MillParams:
     return base
 
 
-def task_config(task: Any) -> EnvConfig:
-    """The environment config of a task (a name or a `tasks.Task`), read and validated once per
-    process and configs folder: every caller that needs a task's plant, periods or gain bounds shares
-    it (an EnvConfig is frozen; its sections are read, never written)."""
+def task_config(task: Any, version: str = "v0") -> EnvConfig:
+    """The environment config of a task (a name or a `tasks.Task`) in environment version `version`, read
+    and validated once per process and configs folder: every caller that needs a task's plant, periods or
+    gain bounds shares it (an EnvConfig is frozen; its sections are read, never written)."""
     from millvib_env.tasks import Task, get_task
 
     t = task if isinstance(task, Task) else get_task(task)
-    return _task_config(str(config_dir()), t.config)
+    return _task_config(str(config_dir()), t.config, version)
 
 
 @lru_cache(maxsize=None)
-def _task_config(root: str, name: str) -> EnvConfig:
-    return load_env_config(name)
+def _task_config(root: str, name: str, version: str) -> EnvConfig:
+    return load_env_config(name, version=version)
 

@@ -30,11 +30,13 @@ from millvib_env.envs.period import summarize_period
 from millvib_env.envs.reward import Reward
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND, state_scale
+from millvib_env.loop import kernel as loop_kernel
+from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS
+from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_UEXT,
-                                     IPL, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, drive_vector, pack,
-                                     settled_state)
+from millvib_env.plant.model import (A_ACC, A_QL, A_U, A_XV, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID,
+                                     C_UEXT, IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, P_UMAX, drive_vector,
+                                     pack, rated_flow, settled_state, state_scale)
 from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
 from millvib_env.threads import numba_threads, use_threads
 
@@ -72,6 +74,9 @@ class MillVibCore:
         observe_phase = seen.phase if observe_phase is None else observe_phase
         self.observe_force = seen.force
         self.period_s = config.decision_dt_s if mode == "gain" else config.control_dt_s
+        #: the sampled loop (v1: a digital controller at the control rate, sensors in the loop), or None for
+        #: the paper's analog loop inside the plant (v0)
+        self.loop = config.loop
         self.n_sub = int(round(self.period_s / config.control_dt_s))
         self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
         self.n_samp = self.n_sub * self.spp
@@ -131,6 +136,13 @@ class MillVibCore:
         self.AUXS = np.zeros((n, self.n_samp + 1, NAUX))
         self.status = np.zeros(n, dtype=np.int64)
         self.n_valid = np.zeros(n, dtype=np.int64)
+        if self.loop is not None:
+            self.CS = np.zeros((n, NCS))  # the digital controllers' states (`loop.kernel.CS_NAMES`)
+            self.LS = self.loop.vector()
+            self.NOISE = np.zeros((n, self.n_ctrl + self.n_sub, 3))  # the sensors' standard normals
+        #: the episode's actuator record: max |u| (V), samples at the limit, samples, max |xv| (m), max |QL|
+        #: (m^3/s), min and max pL (Pa)
+        self.actuator = np.zeros((n, 7))
         self.n_steps = np.zeros(n, dtype=np.int64)
         #: the period's summary (`envs.period.summarize_period`): vibration and error mean squares, max |x|,
         #: min and max pL, per environment
@@ -201,11 +213,20 @@ class MillVibCore:
         c = drive_vector(start, pid_on=self.mode == "gain" or self.residual, pl_ref=pl_ref, change=profile.change)
         c[C_EA], c[C_EW], c[C_EP] = profile.ecc_amp_n, profile.ecc_omega, profile.ecc_phase
         self.C[i] = c
+        plant_c = self.C[i]
+        if self.loop is not None:  # the digital controller takes over the integral term and the hold
+            u0 = float(self.Y[i, IUI]) if c[C_PID] else 0.0
+            self.Y[i, IUI] = 0.0
+            self.CS[i] = loop_kernel.start_state(self.Y[i], float(profile.dFL[0]) + float(self._eccentricity(i, 0.0)),
+                                                 u0, params.u_max)
+            self.NOISE[i] = ep.loop_rng.standard_normal(self.NOISE.shape[1:])
+            plant_c = loop_kernel.plant_drive(self.C[i], self.CS[i, loop_kernel.K_UAPP])
+        self.actuator[i] = (0.0, 0.0, 0.0, 0.0, 0.0, np.inf, -np.inf)
         self.k[i] = 0
         self.reward.start(i)
         self.sq_err_sum[i] = 0.0
         # the record starts at t = 0, as simulate()'s does (the paper's start is at rest: a = 0)
-        self.acc_trace[i, 0] = rhs_vector(0.0, self.Y[i], self.P[i], self.C[i])[IV]
+        self.acc_trace[i, 0] = rhs_vector(0.0, self.Y[i], self.P[i], plant_c)[IV]
         self.n_trace[i] = 1
         self.last_action[i] = 0.0
         self.ep_return[i] = 0.0
@@ -256,9 +277,15 @@ class MillVibCore:
         xd_step, dfl_step = self.XD[rows, cols], self.DFL[rows, cols]
         active = np.ones(n, dtype=np.bool_)
         p_max = 10.0 * float(self.P[:, P_PS].max())  # numerical guard only; the envelope below is physical
-        kernel.advance_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step, active,
-                             self.cfg.control_dt_s, self.spp, self.rtol, self.ATOL, p_max, self.max_kernel_steps,
-                             self.YS, self.AUXS, self.status, self.n_valid, self.n_steps)
+        if self.loop is None:
+            kernel.advance_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step, active,
+                                 self.cfg.control_dt_s, self.spp, self.rtol, self.ATOL, p_max, self.max_kernel_steps,
+                                 self.YS, self.AUXS, self.status, self.n_valid, self.n_steps)
+        else:
+            loop_kernel.advance_loop_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step,
+                                           self.NOISE, self.k * self.n_sub, self.CS, self.LS, active, self.spp,
+                                           self.rtol, self.ATOL, p_max, self.max_kernel_steps, self.YS, self.AUXS,
+                                           self.status, self.n_valid, self.n_steps)
 
         failed = self.status != 0
         if failed.any():  # hold the last good sample so nothing non-finite reaches the filters
@@ -275,20 +302,26 @@ class MillVibCore:
         vib_ms, err_ms, x_abs, pl_lo, pl_hi = self._period
         summarize_period(self.YS, self.AUXS, xd_step, self.spp, self.reward.sos, self.reward.zi, self.acc_trace,
                          self.n_trace, vib_ms, err_ms, x_abs, pl_lo, pl_hi)
+        self._record_actuator(pl_lo, pl_hi)
         last = self.YS[:, -1, :]
         ps = self.P[:, P_PS]
         terminated = failed | (x_abs > self.x_max) | (pl_lo < self.p_min) | (pl_hi > self.p_max_factor * ps)
         offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and self.reward.w_off else None
-        reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset)
+        reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset, remaining=self.max_steps - self.k - 1)
         self.sq_err_sum += err_ms * self.n_samp
         self.k += 1
         truncated = (self.k >= self.max_steps) & ~terminated
         self.ep_return += reward
 
-        u_last = self.AUXS[:, -1, A_U]
-        u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
-        obs = self._observe(np.arange(n), e=xd_step[:, -1] - last[:, IX], v=last[:, IV], a=self.AUXS[:, -1, A_ACC],
-                            pL=last[:, IPL], u_pid=u_pid)
+        if self.loop is None:
+            u_last = self.AUXS[:, -1, A_U]
+            u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
+            obs = self._observe(np.arange(n), e=xd_step[:, -1] - last[:, IX], v=last[:, IV],
+                                a=self.AUXS[:, -1, A_ACC], pL=last[:, IPL], u_pid=u_pid)
+        else:  # what the controller read at its last sample: the same sensors
+            cs = self.CS
+            obs = self._observe(np.arange(n), e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
+                                pL=cs[:, K_PM], u_pid=cs[:, K_UCTRL] if self.residual else np.zeros(n))
         out_obs = self.observer.push(obs)
 
         ended = np.flatnonzero(terminated | truncated)
@@ -330,7 +363,11 @@ class MillVibCore:
         return self.observer.build(idx, self.noise_rng, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
                                    u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
-                                   params=params, force=self.force_deviation(idx) if self.observe_force else None)
+                                   params=params, force=self._observed_force(idx) if self.observe_force else None)
+
+    def _observed_force(self, idx: np.ndarray) -> np.ndarray:
+        """The force channel: the load cells' reading in the sampled loop, else the true deviation."""
+        return self.CS[idx, K_FM] if self.loop is not None else self.force_deviation(idx)
 
     def force_deviation(self, idx: np.ndarray) -> np.ndarray:
         """The load cells' rolling-force deviation FL(t) - FL (N) of environments `idx` now: the force
@@ -395,12 +432,38 @@ class MillVibCore:
                         "severity_start": float(levels["start"][j]), "severity_rest": float(levels["rest"][j]),
                         "pump_line_mm_s": float(levels["pump_line"][j]), "low_band_mm_s": float(levels["low_band"][j]),
                         "diverged": bool(term), "episode_return": float(self.ep_return[i]),
-                        "episode_steps": int(self.k[i]), "scenario": self.scenario[i]})
+                        "episode_steps": int(self.k[i]), "scenario": self.scenario[i], **self.actuator_metrics(i)})
         return out
 
     def acceleration_record(self, i: int) -> np.ndarray:
         """The acceleration samples of environment i's episode so far (m/s^2, from t = 0)."""
         return self.acc_trace[i, :int(self.n_trace[i])].copy()
+
+    def _record_actuator(self, pl_lo: np.ndarray, pl_hi: np.ndarray) -> None:
+        """Add this period to each episode's actuator record (`actuator`): the command's largest
+        magnitude and its samples at the amplifier's limit, the largest port opening and flow, the
+        pressure's range; from the 10 kHz samples the period wrote."""
+        aux = self.AUXS[:, 1:, :]
+        valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
+        u = np.where(valid, np.abs(aux[:, :, A_U]), 0.0)
+        rec = self.actuator
+        u_max = self.P[:, P_UMAX]
+        rec[:, 0] = np.maximum(rec[:, 0], u.max(axis=1))
+        rec[:, 1] += np.sum(valid & (u >= u_max[:, None]), axis=1)
+        rec[:, 2] += valid.sum(axis=1)
+        rec[:, 3] = np.maximum(rec[:, 3], np.where(valid, np.abs(aux[:, :, A_XV]), 0.0).max(axis=1))
+        rec[:, 4] = np.maximum(rec[:, 4], np.where(valid, np.abs(aux[:, :, A_QL]), 0.0).max(axis=1))
+        rec[:, 5] = np.minimum(rec[:, 5], pl_lo)
+        rec[:, 6] = np.maximum(rec[:, 6], pl_hi)
+
+    def actuator_metrics(self, i: int) -> dict:
+        """Environment i's actuator record as episode metrics: the valve command's largest magnitude (V) and
+        its share of time at the amplifier's limit, the spool stroke used (the largest port opening, m), the
+        peak flow against the valve's rated flow (`plant.model.rated_flow`), the chamber pressure's range (Pa)."""
+        rec = self.actuator[i]
+        return {"command_max_abs_v": float(rec[0]), "command_at_limit_share": float(rec[1] / max(rec[2], 1.0)),
+                "spool_stroke_m": float(rec[3]), "peak_flow_ratio": float(rec[4] / rated_flow(self.params[i])),
+                "pl_min_pa": float(rec[5]), "pl_max_pa": float(rec[6])}
 
     def _record_history(self) -> None:
         """Keep the first environment's recent samples for rendering."""

@@ -1,7 +1,8 @@
 """The draw of one episode: its plant, start and disturbances, from one episode seed.
 
-Each episode seed spawns three children of a `SeedSequence`: the plant (randomised parameters and
-the start's jitter), the disturbances, and the sensor noise. A scenario or pinned parameters
+Each episode seed spawns four children of a `SeedSequence`: the plant (randomised parameters and
+the start's jitter), the disturbances, the observation's sensor noise and the sampled loop's sensors
+(v1; the first three are the same children whatever the count). A scenario or pinned parameters
 replace draws but never skip them, so the other streams stay the same.
 """
 
@@ -31,6 +32,7 @@ class Episode:
     x0: float
     scenario: str | None
     noise_rng: np.random.Generator
+    loop_rng: np.random.Generator
 
 
 def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
@@ -71,7 +73,7 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
 def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctrl: int,
                  options: dict[str, Any]) -> Episode:
     """Draw the episode of `episode_seed` (options already checked by `check_reset_options`)."""
-    plant_ss, dist_ss, noise_ss = np.random.SeedSequence(episode_seed).spawn(3)
+    plant_ss, dist_ss, noise_ss, loop_ss = np.random.SeedSequence(episode_seed).spawn(4)
     plant_rng, dist_rng = np.random.default_rng(plant_ss), np.random.default_rng(dist_ss)
     initial = config.initial
     pinned: dict[str, float] = {}
@@ -99,9 +101,14 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     profile = EpisodeProfile(n_ctrl, config.control_dt_s)
     for d in disturbances:
         d.apply(dist_rng, profile, params)
+    rate = initial.setpoint_ramp_m_s
+    if rate > 0 and x0 != 0.0:  # the reference generator leads the set-point from x0 back to 0
+        t = np.arange(profile.n) * profile.dt
+        profile.xd += math.copysign(1.0, x0) * np.maximum(abs(x0) - rate * t, 0.0)
     if settled:
         y0 = settled_state(params, xd=float(profile.xd[0]), dFL=float(profile.dFL[0]))
         x0 = float(y0[0])
     else:
         y0 = initial_state(params, x0=x0)
-    return Episode(params, profile, y0, x0, scenario, np.random.default_rng(noise_ss))
+    return Episode(params, profile, y0, x0, scenario, np.random.default_rng(noise_ss),
+                   np.random.default_rng(loop_ss))

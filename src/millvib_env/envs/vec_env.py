@@ -15,7 +15,7 @@ from millvib_env.envs.core import MillVibCore
 
 __all__ = ["MillVibVecEnv", "make_vec_env", "ENV_IDS"]
 
-from millvib_env.envs.batch import ENV_IDS, env_mode  # noqa: E402 (one table of ids)
+from millvib_env.envs.batch import ENV_IDS, env_mode, env_version  # noqa: E402 (one table of ids)
 
 
 class MillVibVecEnv(VecEnv):
@@ -35,7 +35,7 @@ class MillVibVecEnv(VecEnv):
             raise ValueError(f"render_mode = {render_mode!r} is invalid")
         self.env_id = env_id
         self.render_mode = render_mode
-        self.config = load_env_config(config, **overrides)
+        self.config = load_env_config(config, version=env_version(env_id), **overrides)
         self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase)
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)

@@ -25,8 +25,8 @@ from scipy.integrate import solve_ivp
 from millvib_env._checks import choice, instance, real
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.model import (AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, PlantChange,
-                                     drive_vector, initial_state, pack)
+from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, STATES,
+                                     PlantChange, drive_vector, initial_state, pack, state_scale)
 from millvib_env.severity import iso_zone, vibration_severity
 
 __all__ = ["SimResult", "BatchResult", "simulate", "simulate_batch", "DEFAULT_RTOL_FAST",
@@ -41,28 +41,19 @@ P_MAX_FACTOR = 10.0  # |pL| above 10 x the mean supply pressure is reported as d
 MAX_STEPS_PER_SECOND = 2_000_000
 
 
-def state_scale(params: MillParams) -> np.ndarray:
-    """Typical magnitude of each state (x, v, pL, z, uI); absolute tolerance = rtol * scale."""
-    return np.array([1e-3, 1.0, params.ps, params.fs / params.sigma0, 10.0])
-
-
 @dataclass
 class SimResult:
-    """One simulated run, sampled at ``t`` (s). Arrays in SI units:
-
-    x (m), v (m/s), a (m/s^2), pL (Pa), z (m, LuGre bristle), uI (V, PID integral term),
-    u (V, valve command), xv (m, spool), QL (m^3/s, valve flow), Ff (N, friction), ps (Pa, supply),
-    xd (m, set-point). The auxiliary outputs (a, u, xv, QL, Ff, ps: one `plant_rhs` evaluation per
-    sample, about as much work as the integration itself) are computed on first access, so a run
-    whose caller reads only the states costs only its integration.
+    """One simulated run, sampled at ``t`` (s). Arrays in SI units, one per state of the plant's
+    layout (`model.STATES`: x (m), v (m/s), pL (Pa), z (m, LuGre bristle), uI (V, the analog PID's
+    integral term), xs and vs (m, m/s: the spool of a valve with dynamics)) and per auxiliary output
+    (`model.AUX`: a (m/s^2), u (V, valve command), xv (m, port opening), QL (m^3/s, valve flow), Ff
+    (N, friction), ps (Pa, supply)), and xd (m, set-point). The auxiliary outputs (one `plant_rhs`
+    evaluation per sample, about as much work as the integration itself) are computed on first
+    access, so a run whose caller reads only the states costs only its integration.
     """
 
     t: np.ndarray
-    x: np.ndarray
-    v: np.ndarray
-    pL: np.ndarray
-    z: np.ndarray
-    uI: np.ndarray
+    states: np.ndarray  # (n_t, NY), `model.STATES` order
     xd: np.ndarray
     params: MillParams
     gains: PIDGains
@@ -77,17 +68,11 @@ class SimResult:
 
     @property
     def aux(self) -> np.ndarray:
-        """(n_t, 6): a, u, xv, QL, Ff, ps at every sample (computed once, on first access)."""
+        """(n_t, NAUX): the auxiliary outputs at every sample, `model.AUX` order (computed once, on first
+        access)."""
         if self._aux is None:
             self._aux = self._aux_fn()
         return self._aux
-
-    a = property(lambda self: self.aux[:, 0], doc="piston acceleration (m/s^2)")
-    u = property(lambda self: self.aux[:, 1], doc="valve command (V)")
-    xv = property(lambda self: self.aux[:, 2], doc="spool displacement (m)")
-    QL = property(lambda self: self.aux[:, 3], doc="valve flow (m^3/s)")
-    Ff = property(lambda self: self.aux[:, 4], doc="seal friction (N)")
-    ps = property(lambda self: self.aux[:, 5], doc="supply pressure (Pa)")
 
     @property
     def dt(self) -> float:
@@ -124,12 +109,22 @@ class SimResult:
         return float(np.sqrt(np.mean((self.xd[w] - self.x[w]) ** 2)))
 
 
+def _column(array: str, j: int, doc: str) -> property:
+    return property(lambda self: getattr(self, array)[:, j], doc=doc)
+
+
+for _j, _sig in enumerate(STATES):
+    setattr(SimResult, _sig.name, _column("states", _j, f"{_sig.meaning} ({_sig.unit})"))
+for _j, _sig in enumerate(AUX):
+    setattr(SimResult, _sig.name, _column("aux", _j, f"{_sig.meaning} ({_sig.unit})"))
+
+
 @dataclass
 class BatchResult:
     """N runs on one time grid: arrays of shape (N, n_t); ``result[i]`` gives a SimResult.
 
-    ``states`` is (N, n_t, 5) in the order x, v, pL, z, uI; ``aux`` (N, n_t, 6) in the order
-    a, u, xv, QL, Ff, ps, computed from the states on first access. ``result.x`` etc. give one
+    ``states`` is (N, n_t, NY) in the order of `model.STATES`; ``aux`` (N, n_t, NAUX) in the order of
+    `model.AUX`, computed from the states on first access. ``result.x`` etc. give one
     (N, n_t) array per quantity.
     """
 
@@ -163,13 +158,10 @@ class BatchResult:
         return kernel.aux_at(self.t, self.states[i], pack(self.params[i]), self.drive[i], self.xd[i])
 
     def __getitem__(self, i: int) -> SimResult:
-        s = self.states[i]
-        arrays = {name: s[:, j] for j, name in enumerate(STATE_NAMES)}
-        return SimResult(t=self.t, xd=self.xd[i], params=self.params[i], gains=self.gains[i],
+        return SimResult(t=self.t, states=self.states[i], xd=self.xd[i], params=self.params[i], gains=self.gains[i],
                          method=self.method, diverged=bool(self.diverged[i]),
                          t_diverged=float(self.t_diverged[i]) if self.diverged[i] else None,
-                         status=self.status[i], n_steps=int(self.n_steps[i]), _aux_fn=lambda: self._aux_of(i),
-                         **arrays)
+                         status=self.status[i], n_steps=int(self.n_steps[i]), _aux_fn=lambda: self._aux_of(i))
 
     def __iter__(self):
         return (self[i] for i in range(len(self)))
@@ -266,7 +258,7 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     method : "fast" (compiled BS3(2)) or "reference" (solve_ivp with `ivp_method`).
     rtol : relative tolerance (default 1e-6 fast, 1e-9 reference); atol = rtol * state_scale.
     u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
-    y0 : full initial state (x, v, pL, z, uI), overriding x0.
+    y0 : full initial state (`model.STATES`: x, v, pL, z, uI, xs, vs), overriding x0.
     change : a change of c1 and Ct during the run (`PlantChange`), integrated by the same equations.
     ivp_options : reference method only: ``atol`` (scalar or per state, replacing rtol * state
         scale) and ``max_step`` (s) for `solve_ivp`, e.g. MATLAB ode45's defaults

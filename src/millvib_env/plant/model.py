@@ -1,16 +1,22 @@
-"""The plant's equations, once: the closed-loop right-hand side every integrator calls.
+"""The plant's equations, once: the right-hand side every integrator calls.
 
-State vector ``y`` (``NY = 5``), SI units:
+The state and auxiliary-output layouts are declared once, below (`STATES`, `AUX`): names, units,
+meanings and typical magnitudes; every index constant, `state_scale`, the `SimResult` fields, the
+linearisation and the environments read them from there.
 
-=====  ======  ===========================================================
-index  name    meaning
-=====  ======  ===========================================================
-0      x       piston displacement (m), positive = extending (pressing)
-1      v       piston velocity (m/s)
-2      pL      rod-less chamber pressure (Pa)
-3      z       LuGre mean bristle deflection (m)
-4      uI      PID integral term (V): d(uI)/dt = KI * e
-=====  ======  ===========================================================
+State vector ``y`` (``NY = 7``), SI units:
+
+=======  ======  =============================================================================
+index    name    meaning
+=======  ======  =============================================================================
+0        x       piston displacement (m), positive = extending (pressing)
+1        v       piston velocity (m/s)
+2        pL      rod-less chamber pressure (Pa)
+3        z       LuGre mean bristle deflection (m)
+4        uI      the analog PID's integral term (V): d(uI)/dt = KI * e (the paper's loop only)
+5        xs      servo-valve spool position (m) (a valve with dynamics only; 0 for the ideal valve)
+6        vs      servo-valve spool velocity (m/s) (likewise)
+=======  ======  =============================================================================
 
 Drive vector ``c`` (``NC``), held constant over an integration segment:
 KP, KI, KD (PID gains), xd (set-point, m), u_ext (external valve command, V, added to the PID
@@ -18,6 +24,10 @@ output), pid_on (1.0 or 0.0), dFL (rolling-force offset, N), eccentricity force 
 angular frequency (rad/s) and phase (rad), KPL (pressure-feedback gain, V/Pa) and its reference
 pressure pL_ref (Pa), a within-run change of the plant: start time t0 (s), duration (s) and
 the natural logs of the final factors on c1 and Ct, and KFF (force feedforward gain, V/N).
+
+The analog PID inside the right-hand side (pid_on = 1) is the paper's continuous loop, kept for its
+reproduction and the v0 environments. A sampled (digital) controller is not part of the plant: it
+runs outside (`millvib_env.loop`), sets pid_on = 0 and holds its command in u_ext.
 
 A plant change is part of the drive, not a second copy of the equations: c1(t) = c1 F_c1^s(t) and
 Ct(t) = Ct F_Ct^s(t), with s(t) the smoothstep 3 tau^2 - 2 tau^3 of tau = (t - t0) / duration
@@ -38,7 +48,11 @@ Equations (paper numbering):
   The derivative acts on the measurement (-KD v), so a set-point step gives no derivative kick.
   Storing the integral *term* uI (not int e) makes gain changes bumpless in the integral term.
   Integration stops while the output saturates in the direction of e (anti-windup).
-* (2)-(3) servo amplifier and valve:  xv = Ksv Kp1 u.
+* (2)-(3) servo amplifier and valve. The paper's ideal valve (valve_wn_hz = 0): xv = Ksv Kp1 u.
+  A valve with dynamics (valve_wn_hz > 0, not in the paper): the spool follows the command through
+  a second-order lag, xs'' = wn^2 (Ksv Kp1 u - xs) - 2 zeta wn xs', the standard datasheet model of
+  a servo valve (its phase is -90 deg at wn). Either way the port opening is limited by the spool
+  stroke, xv = clip(xs, -xv_max, xv_max).
 * (1) orifice flow, with supply pressure ps(t) = ps (1 + A (sin wt + h2 sin 2wt + h3 sin 3wt)):
   QL = Cd W xv sqrt(2/rho) R(ps(t) - pL) if xv >= 0, QL = Cd W xv sqrt(2/rho) R(pL - pt) otherwise,
   where R(dp) = dp / (dp^2 + dp_reg^2)^(1/4) is a regularised signed root: the flow reverses with
@@ -60,10 +74,56 @@ from numba import njit
 
 from millvib_env.params import PARAM_FIELDS, MillParams, PIDGains
 
-# --- layout of the vectors the compiled code reads ---------------------------------------------
-NY = 5
-IX, IV, IPL, IZ, IUI = range(NY)
-STATE_NAMES = ("x", "v", "pL", "z", "uI")
+# --- layout of the vectors the compiled code reads: declared once ------------------------------
+@dataclass(frozen=True)
+class Signal:
+    """One entry of a vector layout: its name, unit and meaning."""
+
+    name: str
+    unit: str
+    meaning: str
+
+
+#: the state vector y, in order (the module docstring's table)
+STATES = (
+    Signal("x", "m", "piston displacement, positive = extending (pressing)"),
+    Signal("v", "m/s", "piston velocity"),
+    Signal("pL", "Pa", "rod-less chamber pressure"),
+    Signal("z", "m", "LuGre mean bristle deflection"),
+    Signal("uI", "V", "the analog PID's integral term (the paper's continuous loop only)"),
+    Signal("xs", "m", "servo-valve spool position (a valve with dynamics; 0 for the ideal valve)"),
+    Signal("vs", "m/s", "servo-valve spool velocity (a valve with dynamics; 0 for the ideal valve)"),
+)
+#: the auxiliary outputs every right-hand-side evaluation writes, in order
+AUX = (
+    Signal("a", "m/s^2", "piston acceleration"),
+    Signal("u", "V", "servo-amplifier command after its saturation"),
+    Signal("xv", "m", "valve port opening (the spool, limited to its stroke)"),
+    Signal("QL", "m^3/s", "valve flow into the chamber"),
+    Signal("Ff", "N", "seal friction"),
+    Signal("ps", "Pa", "supply pressure with the pump's pulsation"),
+)
+STATE_NAMES = tuple(s.name for s in STATES)
+AUX_NAMES = tuple(s.name for s in AUX)
+NY = len(STATES)
+IX, IV, IPL, IZ, IUI, IXS, IVS = (STATE_NAMES.index(n) for n in ("x", "v", "pL", "z", "uI", "xs", "vs"))
+#: the states of the valve's dynamics: constant (zero) for the ideal valve, and then left out of the
+#: integrator's error norm and of the linearisation
+VALVE_STATES = (IXS, IVS)
+#: the states before the valve's (the valve's come last, so the ideal valve's norm is a prefix)
+N_CORE_STATES = NY - len(VALVE_STATES)
+assert VALVE_STATES == tuple(range(N_CORE_STATES, NY))
+NAUX = len(AUX)
+A_ACC, A_U, A_XV, A_QL, A_FF, A_PS = (AUX_NAMES.index(n) for n in ("a", "u", "xv", "QL", "Ff", "ps"))
+
+
+def state_scale(params: MillParams) -> np.ndarray:
+    """Typical magnitude of each state (`STATES` order); the integrators' absolute tolerance is
+    rtol * scale."""
+    typical = {"x": 1e-3, "v": 1.0, "pL": params.ps, "z": params.fs / params.sigma0, "uI": 10.0,
+               "xs": 1e-3, "vs": 1.0}
+    return np.array([typical[n] for n in STATE_NAMES])
+
 
 _P = {name: i for i, name in enumerate(PARAM_FIELDS)}
 NP = len(PARAM_FIELDS)
@@ -73,19 +133,15 @@ P_KP1, P_KSV, P_L1, P_L = (_P[k] for k in ("Kp1", "Ksv", "L1", "L"))
 P_S0, P_S1, P_S2, P_FC, P_FS, P_VS = (_P[k] for k in ("sigma0", "sigma1", "sigma2", "fc", "fs", "vs"))
 P_PA, P_PF, P_PH2, P_PH3, P_DPR, P_UMAX = (
     _P[k] for k in ("pulse_amp", "pulse_freq", "pulse_h2", "pulse_h3", "dp_reg", "u_max"))
+P_VWN, P_VZETA, P_XVMAX = (_P[k] for k in ("valve_wn_hz", "valve_zeta", "xv_max"))
 
 NC = 17
 (C_KP, C_KI, C_KD, C_XD, C_UEXT, C_PID, C_DFL, C_EA, C_EW, C_EP, C_KPL, C_PLREF,
  C_CHG_T0, C_CHG_DT, C_CHG_LC1, C_CHG_LCT, C_KFF) = range(NC)
 
-NAUX = 6
-A_ACC, A_U, A_XV, A_QL, A_FF, A_PS = range(NAUX)
-AUX_NAMES = ("a", "u", "xv", "QL", "Ff", "ps")
-
-
 # derived coefficients, appended to the parameter vector by `pack` (computed once per plant)
-ND = 9
-D_KQ, D_DPR2, D_BA, D_W, D_INVVS, D_FSC, D_ABPB, D_INVM, D_KXV = range(NP, NP + ND)
+ND = 12
+D_KQ, D_DPR2, D_BA, D_W, D_INVVS, D_FSC, D_ABPB, D_INVM, D_KXV, D_KQX, D_VW, D_ULIM = range(NP, NP + ND)
 NPACK = NP + ND
 
 
@@ -102,6 +158,9 @@ def pack(params: MillParams) -> np.ndarray:
     p[D_ABPB] = params.Ab * params.pb
     p[D_INVM] = 1.0 / params.mt
     p[D_KXV] = params.Ksv * params.Kp1
+    p[D_KQX] = params.Cd * params.W * math.sqrt(2.0 / params.rho)  # flow per (m of opening, sqrt Pa)
+    p[D_VW] = 2.0 * math.pi * params.valve_wn_hz
+    p[D_ULIM] = params.xv_max / p[D_KXV]  # the command that opens the ideal valve to its stroke (inf: none)
     return p
 
 
@@ -173,14 +232,30 @@ def plant_rhs(t, y, p, c, dy, aux):
         if dui < 0.0:
             dui = 0.0
 
-    # servo amplifier and valve (2)-(3): xv = Ksv Kp1 u; orifice flow (1) with pump pulsation and
-    # the regularised signed root dp / (dp^2 + dp_reg^2)^(1/4)
+    # servo amplifier and valve (2)-(3); orifice flow (1) with pump pulsation and the regularised
+    # signed root dp / (dp^2 + dp_reg^2)^(1/4)
     ps_t = supply_pressure(t, p)
-    if u >= 0.0:
-        dp = ps_t - pL
-    else:
-        dp = pL - p[P_PT]
-    ql = p[D_KQ] * u * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
+    if p[D_VW] > 0.0:  # a valve with dynamics: the spool lags the command (second order)
+        wn = p[D_VW]
+        xs = y[IXS]
+        dy[IXS] = y[IVS]
+        dy[IVS] = wn * (wn * (p[D_KXV] * u - xs) - 2.0 * p[P_VZETA] * y[IVS])
+        xv = min(max(xs, -p[P_XVMAX]), p[P_XVMAX])
+        if xv >= 0.0:
+            dp = ps_t - pL
+        else:
+            dp = pL - p[P_PT]
+        ql = p[D_KQX] * xv * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
+    else:  # the paper's ideal valve: xv = Ksv Kp1 u, at once (bit for bit the paper's loop when xv_max = inf)
+        dy[IXS] = 0.0
+        dy[IVS] = 0.0
+        uv = min(max(u, -p[D_ULIM]), p[D_ULIM])
+        xv = p[D_KXV] * uv
+        if uv >= 0.0:
+            dp = ps_t - pL
+        else:
+            dp = pL - p[P_PT]
+        ql = p[D_KQ] * uv * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
 
     # continuity (4): V = Ap (L1 + x)
     c1, ct = damping_and_leakage(t, p, c)
@@ -205,7 +280,7 @@ def plant_rhs(t, y, p, c, dy, aux):
     dy[IUI] = dui
     aux[A_ACC] = acc
     aux[A_U] = u
-    aux[A_XV] = p[D_KXV] * u
+    aux[A_XV] = xv
     aux[A_QL] = ql
     aux[A_FF] = ff
     aux[A_PS] = ps_t
@@ -273,6 +348,19 @@ class PlantChange:
                 params.Ct * math.exp(s * math.log(self.ct_factor)))
 
 
+#: a servo valve's catalogue rating: the flow at the rated command (10 V, full spool stroke) and a
+#: 7 MPa (70 bar) pressure drop across the valve, the usual datasheet condition
+RATED_COMMAND_V = 10.0
+RATED_DROP_PA = 7.0e6
+
+
+def rated_flow(params: MillParams) -> float:
+    """The valve's rated flow (m^3/s): orifice equation (1) at the rated command's opening
+    (Ksv Kp1 x 10 V, within the spool stroke) and the rated drop. 2.5e-3 m^3/s (149 L/min) for Table 1."""
+    opening = min(params.xv_per_volt * RATED_COMMAND_V, params.xv_max)
+    return params.Cd * params.W * opening * math.sqrt(2.0 / params.rho) * math.sqrt(RATED_DROP_PA)
+
+
 def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.0) -> float:
     """Chamber pressure pL that gives zero acceleration in state y (Eq. 8 is linear in pL).
 
@@ -308,9 +396,10 @@ def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: floa
 
     Both unknowns come from `plant_rhs` itself: pL through `balanced_pressure`, uI because the
     pressure rate is linear in the valve command on either side of u = 0. The supply pressure is
-    its mean (the pulsation's phase is zero at t = 0).
+    its mean (the pulsation's phase is zero at t = 0). A valve with dynamics starts with its spool
+    at the opening that holds the leak (the command solved with the ideal valve's equations).
     """
-    p = pack(params)
+    p = pack(params.replace(valve_wn_hz=0.0, xv_max=math.inf))
     c = np.zeros(NC)
     c[C_KP], c[C_PID], c[C_XD], c[C_DFL] = 1.0, 1.0, xd, dFL  # e = 0: the gain plays no part
     y = np.zeros(NY)
@@ -324,4 +413,7 @@ def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: floa
     y[IUI] = side
     plant_rhs(0.0, y, p, c, dy, aux)
     y[IUI] = -leak_rate * side / (dy[IPL] - leak_rate) if dy[IPL] != leak_rate else 0.0
+    if not params.ideal_valve:
+        y[IXS] = min(max(params.xv_per_volt * min(max(y[IUI], -params.u_max), params.u_max),
+                         -params.xv_max), params.xv_max)
     return y

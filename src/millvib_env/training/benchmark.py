@@ -31,6 +31,8 @@ from millvib_env.control.agents import list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
 from millvib_env.control.policies import baseline_names
+from millvib_env.envs.batch import env_id_for, env_version
+from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig, task_config
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, run_episodes, trace_episode
@@ -77,12 +79,49 @@ def summarize(records: Sequence[dict]) -> dict:
         out["per_seed"] = [{"seed": g[0]["agent_seed"], "cost_mean": float(np.mean([r["cost"] for r in g])),
                             "cost_cvar20": cvar([r["cost"] for r in g]),
                             "severity_mean": float(np.mean([r["severity_mm_s"] for r in g]))} for g in groups]
+    out.update(actuator_summary(records))
     for key in ("severity_start_mm_s", "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s",
                 "c1_log_error", "ct_log_error"):
         vals = [r[key] for r in records if key in r]
         if vals:
             out[key.replace("_mm_s", "") + "_mean"] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
     return out
+
+
+def _spread(values) -> dict:
+    v = np.asarray(values, float)
+    return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(np.max(v))}
+
+
+def actuator_summary(records: Sequence[dict]) -> dict:
+    """What a controller asked of its actuator, over its episodes: the valve command's largest magnitude per
+    episode (median, p95, max; V) and its mean share of time at the amplifier's limit, the spool stroke used
+    (m) and the peak flow against the rated flow (median, p95, max), the chamber pressure's range (Pa), and
+    the number of episodes that diverged (scored at least `DIVERGED_COST`)."""
+    return {"command": {"max_abs_v": _spread([r["command_max_abs_v"] for r in records]),
+                        "share_at_limit": float(np.mean([r["command_at_limit_share"] for r in records]))},
+            "spool_stroke_m": _spread([r["spool_stroke_m"] for r in records]),
+            "peak_flow_ratio": _spread([r["peak_flow_ratio"] for r in records]),
+            "pressure_pa": {"min": float(min(r["pl_min_pa"] for r in records)),
+                            "max": float(max(r["pl_max_pa"] for r in records))},
+            "n_diverged": int(sum(bool(r["diverged"]) for r in records))}
+
+
+def loop_description(cfg: EnvConfig) -> dict:
+    """The loop an environment config runs (the benchmark JSON's ``loop``): the controller's rate and delay,
+    the amplifier's limit, the valve and the sensors; ``analog`` for the paper's continuous loop (v0)."""
+    from millvib_env.plant.model import rated_flow
+
+    p = cfg.base_params
+    valve = {"natural_frequency_hz": p.valve_wn_hz, "damping": p.valve_zeta, "xv_max_m": p.xv_max,
+             "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)} if not p.ideal_valve else \
+        {"ideal": True, "xv_max_m": p.xv_max, "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)}
+    finite = lambda v: v if math.isfinite(v) else None  # noqa: E731 (JSON has no infinity: null = no limit)
+    valve["xv_max_m"] = finite(valve["xv_max_m"])
+    out = {"u_max_v": finite(p.u_max), "valve": valve}
+    if cfg.loop is None:
+        return {"kind": "analog", **out}
+    return {"kind": "digital", **cfg.loop.describe(), **out}
 
 
 def distinct_plant_scenarios() -> list[str]:
@@ -100,15 +139,15 @@ def distinct_plant_scenarios() -> list[str]:
 def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
                     env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[dict]:
     """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep); for an agent,
-    its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`."""
-    ctrl = load_controller(name, task, seed=agent_seed)
-    return _run(ctrl, seeds, env_id, task, env_kwargs)
+    its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`. A baseline
+    runs in `env_id`'s version; an agent in its own."""
+    ctrl = load_controller(name, task, seed=agent_seed, version=env_version(env_id))
+    return _run(ctrl, seeds, task, env_kwargs)
 
 
-def _run(ctrl: Controller, seeds, env_id: str, task: str, env_kwargs: dict | None = None, **kw) -> list[dict]:
+def _run(ctrl: Controller, seeds, task: str, env_kwargs: dict | None = None, **kw) -> list[dict]:
     is_agent = getattr(ctrl, "card", None) is not None
-    recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id if is_agent else env_id, task=task, env_kwargs=env_kwargs,
-                        **kw)
+    recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=task, env_kwargs=env_kwargs, **kw)
     if is_agent:
         for r in recs:
             r["agent_seed"] = ctrl.seed
@@ -119,7 +158,8 @@ def _run(ctrl: Controller, seeds, env_id: str, task: str, env_kwargs: dict | Non
 CHUNK = 50
 
 
-def _load_units(names: list[str], task: str, all_seeds: bool) -> tuple[list[tuple[str, int | None]], dict]:
+def _load_units(names: list[str], task: str, all_seeds: bool,
+                version: str) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
     from millvib_env.control.agents import agent_seeds
@@ -127,7 +167,7 @@ def _load_units(names: list[str], task: str, all_seeds: bool) -> tuple[list[tupl
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
     for n in names:
-        first = load_controller(n, task)
+        first = load_controller(n, task, version=version)
         if getattr(first, "card", None) is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
                 units.append((n, s))
@@ -139,7 +179,7 @@ def _load_units(names: list[str], task: str, all_seeds: bool) -> tuple[list[tupl
 
 
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
-                  episodes: int | None = None, seed: int = 0, env_id: str = "MillVib-GainSchedule-v0",
+                  episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
                   all_seeds: bool = False, reference: str | None = None) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
@@ -150,26 +190,32 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     CHUNK episodes run as Ray tasks; each episode depends only on its seeds, so the numbers are the
     local run's. Every controller is compared on the same plants with `reference` (default
     `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
-    `controllers` leaves it out) and with pid-robust."""
+    `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
+    (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
+    controllers are the baselines and the agents trained in that version."""
     from millvib_env.control.policies import REFERENCE
 
+    if env_version not in ENV_VERSIONS:
+        raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
+    env_id = env_id_for("gain", env_version)
     t = get_task(task)
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
     names = list(dict.fromkeys(strings("controllers", controllers, "controller names"))) if controllers is not None \
-        else baseline_names() + list_agents(t.name)
+        else baseline_names() + list_agents(t.name, env_version)
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
-        load_controller(reference, t.name)  # an unknown name fails here, in one line, before any run
+        load_controller(reference, t.name, version=env_version)  # an unknown name fails here, in one line
         names = [reference] + names
-    units, loaded = _load_units(names, t.name, all_seeds)
+    units, loaded = _load_units(names, t.name, all_seeds, env_version)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
+    cfg = task_config(t.name, env_version)
     result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
-                    "env_id": env_id,
+                    "env_id": env_id, "env_version": env_version, "loop": loop_description(cfg),
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
                     "scenarios": {}, "records": {}}
     start = time.time()
@@ -188,18 +234,18 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
             from tqdm.auto import tqdm
             iterator = tqdm(units, desc=f"benchmark {t.name}", unit="run")
         for unit in iterator:
-            records[unit] = _run(loaded[unit], plants, env_id, t.name)
+            records[unit] = _run(loaded[unit], plants, t.name)
     for name in names:
         recs = [r for (n, _), part in records.items() if n == name for r in part]
         first = loaded[next(u for u in units if u[0] == name)]
         summary = summarize(recs)
-        summary["env_id"] = first.env_id if getattr(first, "card", None) is not None else env_id
+        summary["env_id"] = first.env_id
         result["controllers"][name] = summary
         result["records"][name] = recs
         if scenarios:
             sc_recs = {}
             for sc in distinct_plant_scenarios():
-                rec = _run(first, [plants[0]], env_id, t.name, scenario=sc)[0]
+                rec = _run(first, [plants[0]], t.name, scenario=sc)[0]
                 sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
                                                    "cost")}
             result["scenarios"][name] = sc_recs
@@ -286,6 +332,22 @@ def format_table(result: dict) -> str:
                      f"{s.get('severity_start_mean', math.nan):.3g} | {s.get('severity_rest_mean', math.nan):.3g} | "
                      f"{s.get('pump_line_mean', math.nan):.3g} | {s.get('low_band_mean', math.nan):.3g} | "
                      f"{z['A']}/{z['B']}/{z['C']}/{z['D']} |")
+    if all("command" in s for s in ctrls.values()):
+        loop = result.get("loop") or {}
+        u_max = loop.get("u_max_v")
+        lines += ["", f"The actuator ({result.get('env_version', 'v0')}: "
+                  + (f"a {loop.get('rate_hz', 0):g} Hz digital loop, " if loop.get("kind") == "digital" else
+                     "the paper's analog loop, ")
+                  + (f"amplifier limit +-{u_max:g} V" if u_max is not None else "no amplifier limit")
+                  + "; per episode, median / p95 / max over the episodes):", "",
+                  "| controller | largest command (V) | time at the limit | spool stroke (mm) | peak flow / rated flow "
+                  "| chamber pressure (MPa) | diverged episodes |", "|---|---|---|---|---|---|---|"]
+        for name, s in ctrls.items():
+            c, st, fl, pr = s["command"]["max_abs_v"], s["spool_stroke_m"], s["peak_flow_ratio"], s["pressure_pa"]
+            lines.append(f"| {name} | {c['median']:.3g} / {c['p95']:.3g} / {c['max']:.3g} | "
+                         f"{100 * s['command']['share_at_limit']:.1f} % | {1e3 * st['median']:.3g} / "
+                         f"{1e3 * st['p95']:.3g} / {1e3 * st['max']:.3g} | {fl['median']:.3g} / {fl['p95']:.3g} / "
+                         f"{fl['max']:.3g} | {pr['min'] / 1e6:.3g}-{pr['max'] / 1e6:.3g} | {s['n_diverged']} |")
     spread = {n: s["per_seed"] for n, s in ctrls.items() if len(s.get("per_seed", [])) > 1}
     if spread:
         lines += ["", "Spread over training seeds (mean cost / CVaR-20 of each seed on the same plants):", "",
@@ -346,10 +408,10 @@ def _write_files(result: dict, out: Path) -> list[Path]:
     files.append(_plot_bars(result, out / "cost_bars.png"))
     if result.get("task", "startup") == "startup":
         files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
-                                  result["plants"][0]))
+                                  result["plants"][0], version=result.get("env_version", "v0")))
     else:
         files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["plants"][0],
-                                  scenario=None, task=result["task"]))
+                                  scenario=None, task=result["task"], version=result.get("env_version", "v0")))
     return files
 
 
@@ -358,24 +420,29 @@ TRACE_SCENARIO = "low-damping-high-leakage"
 
 
 def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | None = TRACE_SCENARIO,
-                 task: str = "startup") -> Path:
+                 task: str = "startup", version: str = "v0") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    u_max = task_config(task, version).base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
-        tr = trace_episode(load_controller(name, task), scenario=scenario, seed=seed, task=task)
+        tr = trace_episode(load_controller(name, task, version=version), scenario=scenario, seed=seed, task=task)
         info = tr["info"]
         label = f"{name}: {info['severity']:.3g} mm/s, {info['tracking_rms_um']:.3g} um"
         axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label, color=color)
         axes[1].plot(tr["t"] * 1e3, tr["v"] * 1e3, lw=0.6, color=color)
+        axes[2].plot(tr["t"] * 1e3, tr["u"], lw=0.6, color=color)
         if len(tr["gains"]):
             steps = np.arange(len(tr["gains"])) * tr["step_s"] * 1e3
             kp = tr["gains"][:, 0]
-            axes[2].step(steps, np.log10(np.where(kp > 0, kp, np.nan)), where="post", lw=1.0, color=color)
+            axes[3].step(steps, np.log10(np.where(kp > 0, kp, np.nan)), where="post", lw=1.0, color=color)
+    if math.isfinite(u_max):  # the amplifier's rated range: no command leaves it
+        for sign in (-1, 1):
+            axes[2].axhline(sign * u_max, color="k", ls="--", lw=0.8)
     if scenario is not None:
         axes[0].set(ylabel="x (um)", title=f"Scenario '{scenario}' (c1 and Ct at their worst, 1 mm start): "
                                            "fixed PIDs against agents")
@@ -384,7 +451,8 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | No
         axes[0].set(ylabel="x (um)", title=f"Task '{task}', held-out plant {seed}: {tr['info']['params']}"[:110])
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
-    axes[2].set(ylabel="log10 KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
+    axes[2].set(ylabel="valve command u (V)" + (f"; limit +-{u_max:g} V dashed" if math.isfinite(u_max) else ""))
+    axes[3].set(ylabel="log10 KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -490,7 +558,8 @@ def benchmark_from_cli(args) -> int:
         raise ValueError(f"--episodes {args.episodes} is invalid: at least 1")
     if args.seed < 0:
         raise ValueError(f"--seed {args.seed} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")
-    result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed, env_id=args.env,
+    result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed,
+                           env_version=args.env_version,
                            scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray,
                            all_seeds=args.all_seeds, reference=args.reference)
     print(format_table(result))

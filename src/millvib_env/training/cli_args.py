@@ -8,8 +8,9 @@ import argparse
 def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--algo", required=True, choices=["ppo", "sac", "recurrentppo"],
                    help="algorithm; hyperparameters come from configs/agents/<algo>.yml")
-    p.add_argument("--env", default="MillVib-GainSchedule-v0",
-                   help="environment id (default MillVib-GainSchedule-v0), the key in the YAML")
+    p.add_argument("--env", default="MillVib-GainSchedule-v1",
+                   help="environment id, the key in the YAML (default MillVib-GainSchedule-v1: the loop as "
+                        "commissioned; -v0 ids train on the paper's analog loop)")
     p.add_argument("--task", default="startup",
                    help="task whose episodes and training seeds to use: startup, rolling or change (default startup)")
     seeds = p.add_mutually_exclusive_group()
@@ -57,8 +58,11 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or paths to agent "
                         "folders, which are trusted code: SB3 unpickles parts of model.zip (default: every baseline "
                         "and every shipped agent trained on the task)")
-    p.add_argument("--env", default="MillVib-GainSchedule-v0",
-                   help="environment id the plants are drawn from (default MillVib-GainSchedule-v0)")
+    p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
+                   help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "
+                        "controller, sensors in the loop, a servo valve with dynamics and a +-10 V amplifier; "
+                        "default), or v0, the paper's analog loop with an unlimited valve. Agents run in the "
+                        "version they were trained in; the default controllers are those of this version")
     p.add_argument("--episodes", type=int, default=None,
                    help="held-out plants per controller (default 40; 200 with --all-seeds)")
     p.add_argument("--seed", type=int, default=0,

@@ -16,8 +16,10 @@ import numpy as np
 from millvib_env._checks import instance, integer, integers, real
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
+from millvib_env.envs.reward import DIVERGED_COST
 
-__all__ = ["run_episodes", "episode_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS", "CSV_FIELDS"]
+__all__ = ["run_episodes", "episode_cost", "scored_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS",
+           "CSV_FIELDS", "ACTUATOR_FIELDS", "DIVERGED_COST"]
 
 
 class EpisodeRecord(TypedDict, total=False):
@@ -37,7 +39,13 @@ class EpisodeRecord(TypedDict, total=False):
     tracking_rms_um: float
     iso_zone: str
     diverged: bool
-    cost: float                 # `episode_cost`, inf for a diverged episode
+    cost: float                 # `episode_cost`; a diverged episode: at least `DIVERGED_COST`
+    command_max_abs_v: float    # the valve command's largest magnitude (V)
+    command_at_limit_share: float  # its share of the episode at the amplifier's limit
+    spool_stroke_m: float       # the largest port opening (m)
+    peak_flow_ratio: float      # the peak valve flow / the valve's rated flow
+    pl_min_pa: float            # the chamber pressure's range (Pa)
+    pl_max_pa: float
     severity_start_mm_s: float
     severity_rest_mm_s: float
     pump_line_mm_s: float
@@ -53,10 +61,22 @@ RECORD_FIELDS = tuple(EpisodeRecord.__annotations__)
 #: the columns of the benchmark's episodes.csv (after "controller"), in order
 CSV_FIELDS = ("agent_seed", "seed", "c1", "Ct", "c1_end", "Ct_end", "severity_mm_s", "severity_start_mm_s",
               "severity_rest_mm_s", "pump_line_mm_s", "low_band_mm_s", "tracking_rms_um", "iso_zone", "diverged",
-              "cost", "episode_return", "c1_log_error", "ct_log_error")
+              "cost", "episode_return", "command_max_abs_v", "command_at_limit_share", "spool_stroke_m",
+              "peak_flow_ratio", "pl_min_pa", "pl_max_pa", "c1_log_error", "ct_log_error")
+#: the actuator's record of an episode (`envs.core.MillVibCore.actuator_metrics`), copied into each record
+ACTUATOR_FIELDS = ("command_max_abs_v", "command_at_limit_share", "spool_stroke_m", "peak_flow_ratio", "pl_min_pa",
+                   "pl_max_pa")
 
 #: the benchmark's cost: severity / 4.5 mm/s + tracking RMS / 10 um (ISO B/C boundary; 10 um gauge)
 COST_SCALES = {"severity_mm_s": 4.5, "tracking_um": 10.0}
+
+
+def scored_cost(severity_mm_s: float, tracking_rms_um: float, diverged: bool, scales: dict | None = None) -> float:
+    """The cost an episode is scored at: `episode_cost`, and for an episode that diverged (left its envelope
+    or failed to integrate) at least `envs.reward.DIVERGED_COST`, whatever its short record cost, so failing
+    early never pays. Every tuner and the benchmark score episodes with this."""
+    cost = episode_cost(severity_mm_s, tracking_rms_um, scales) if math.isfinite(severity_mm_s) else math.inf
+    return max(cost, DIVERGED_COST) if diverged else cost
 
 
 def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | None = None) -> float:
@@ -116,7 +136,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
                               "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
                               "severity_mm_s": sev, "tracking_rms_um": trk,
                               "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),
-                              "cost": episode_cost(sev, trk, scales) if math.isfinite(sev) else math.inf,
+                              "cost": scored_cost(sev, trk, bool(info["diverged"]), scales),
+                              **{k: info[k] for k in ACTUATOR_FIELDS},
                               "severity_start_mm_s": info["severity_start"],
                               "severity_rest_mm_s": info["severity_rest"],
                               "pump_line_mm_s": info["pump_line_mm_s"], "low_band_mm_s": info["low_band_mm_s"],

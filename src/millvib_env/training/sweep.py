@@ -32,10 +32,10 @@ SEED_OFFSET = 40_000
 CHUNK = 64
 
 
-def _randomize(task: str, params: Sequence[str]) -> dict:
+def _randomize(task: str, params: Sequence[str], version: str = "v0") -> dict:
     from millvib_env.envs.config import task_config
 
-    cfg = task_config(task)
+    cfg = task_config(task, version)
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:
         if name not in RANGES:
@@ -46,8 +46,10 @@ def _randomize(task: str, params: Sequence[str]) -> dict:
 
 
 def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup", params: Sequence[str] = ("c1", "Ct"),
-              seed: int | None = None, ray: str | None = None, processes: int = 1, progress: bool = True) -> dict:
-    """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}."""
+              seed: int | None = None, ray: str | None = None, processes: int = 1, progress: bool = True,
+              env_version: str = "v1") -> dict:
+    """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}. Baselines run
+    in environment version `env_version` (agents in their own)."""
     from millvib_env.control.factory import load_controller
     from millvib_env.distributed import run_jobs
     from millvib_env.training.benchmark import episode_records, summarize
@@ -58,20 +60,24 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     controllers = strings("controllers", controllers, "controller names")
     params = list(dict.fromkeys(strings("params", params, "parameter names")))
     seed = None if seed is None else integer("seed", seed, lo=0)
-    randomize = _randomize(t.name, params)
+    from millvib_env.envs.batch import env_id_for
+
+    env_id = env_id_for("gain", env_version)
+    randomize = _randomize(t.name, params, env_version)
     first = t.seeds["heldout"].start + SEED_OFFSET if seed is None else seed
     seeds = list(range(first, first + plants))
     t.check_heldout(seeds)
     for name in controllers:
-        load_controller(name, t.name)  # a bad name fails here, before any job starts
-    jobs = [{"name": n, "task": t.name, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize}}
+        load_controller(name, t.name, version=env_version)  # a bad name fails here, before any job starts
+    jobs = [{"name": n, "task": t.name, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize},
+             "env_id": env_id}
             for n in controllers for i in range(0, plants, CHUNK)]
     parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
                      desc=f"sweep {t.name}")
     records: dict[str, list] = {n: [] for n in controllers}
     for job, part in zip(jobs, parts):
         records[job["name"]].extend(part)
-    summary = {"task": t.name, "plants": plants, "seed": first, "params": params,
+    summary = {"task": t.name, "env_version": env_version, "plants": plants, "seed": first, "params": params,
                "ranges": {p: list(RANGES[p]) for p in params},
                "controllers": {n: summarize(r) for n, r in records.items()}}
     return {"records": records, "summary": summary}
@@ -135,7 +141,7 @@ def sweep_from_cli(args) -> int:
 
     check_result_folder(args.out, "--out", "sweep")
     result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
-                       ray=args.ray, processes=args.jobs, progress=not args.quiet)
+                       ray=args.ray, processes=args.jobs, progress=not args.quiet, env_version=args.env_version)
     from millvib_env.training.evaluate import COST_SCALES
 
     s = result["summary"]

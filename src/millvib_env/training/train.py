@@ -28,6 +28,7 @@ import numpy as np
 from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.control.manifest import EVAL_CURVE
+from millvib_env.envs.batch import env_version
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
@@ -38,11 +39,11 @@ AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURV
 N_VALIDATION = 40
 
 
-def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
+def resolve_named_gains(env_kwargs: dict, task: str, version: str = "v0") -> dict:
     """`env_kwargs` with gain sets named by a baseline (``residual_gains: pid-pf-robust``,
-    ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task`
-    (configs/control/<task>.yaml): a hyperparameter file names the controller it builds on once, and
-    the model card records the numbers."""
+    ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task` in environment version
+    `version` (`envs.config.control_config_path`): a hyperparameter file names the controller it builds on
+    once, and the model card records the numbers."""
     from millvib_env.envs.config import named_gains
 
     acts = env_kwargs.get("actions")
@@ -50,10 +51,10 @@ def resolve_named_gains(env_kwargs: dict, task: str) -> dict:
         return env_kwargs
     acts = dict(acts)
     if isinstance(acts.get("residual_gains"), str):
-        acts["residual_gains"] = named_gains(acts["residual_gains"], task)
+        acts["residual_gains"] = named_gains(acts["residual_gains"], task, version)
     rel = acts.get("relative")
     if isinstance(rel, dict) and isinstance(rel.get("base"), str):
-        acts["relative"] = {**rel, "base": named_gains(rel["base"], task)}
+        acts["relative"] = {**rel, "base": named_gains(rel["base"], task, version)}
     return {**env_kwargs, "actions": acts}
 
 
@@ -208,7 +209,7 @@ def _continue_evaluations(callback, log_path: Path) -> None:
         callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
 
 
-def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", **kwargs) -> dict:
+def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
     """Train one agent; returns its model card (also written to the run folder). Keyword arguments
     as `_train`. The plant runs serially unless MILLVIB_NUM_THREADS says otherwise: the learner
     dominates and idle plant threads slow torch (`millvib_env.threads`)."""
@@ -218,7 +219,7 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v0", **kwargs) -> dict:
         return _train(algo, env_id, **kwargs)
 
 
-def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "startup", seed: int = 0,
+def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "startup", seed: int = 0,
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
@@ -252,7 +253,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v0", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), the_task.name)
+    env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), the_task.name, env_version(env_id))
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give

@@ -55,33 +55,40 @@ def _gain_entry(res, seeds: list[int], how: str) -> dict:
             "tuning_cost": round(res.cost, 4), "seeds": [seeds[0], seeds[-1]], "how": how}
 
 
-def _pf_starts(task: Task, seeds: list[int]) -> np.ndarray:
+def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[float] | None = None) -> np.ndarray:
     """Starting points of the PID + pressure-feedback search: a coarse grid over (KP, KI, KPL) with KD
-    at its 300 V s/m limit, and the LQR design of the task's centre plant."""
+    at its 300 V s/m limit, the LQR design of the task's centre plant, and (where given) the tuned PID
+    `pid` (log10 KP, KI, KD) with the weakest pressure feedback, so the search never ends above the PID
+    it extends."""
     from millvib_env.control.lqr import LQRWeights, lqr_gains
     from millvib_env.envs.config import load_env_config
 
     grid = np.stack(np.meshgrid([5.5, 6.0, 6.5], [7.0, 8.0, 9.0], [np.log10(300.0)], [-5.0, -4.5, -4.0, -3.5],
                                 indexing="ij"), axis=-1).reshape(-1, 4)
-    cfg = load_env_config(task.config)
+    cfg = load_env_config(task.config, version=version)
     centre = {d.name: math.sqrt(d.low * d.high) for d in cfg.randomize if d.name in ("c1", "Ct")}
     starts = [grid]
     try:
         from millvib_env.control.factory import control_entry
 
-        weights = LQRWeights(**control_entry(task.name, "lqr-oracle")["weights"])
+        weights = LQRWeights(**control_entry(task.name, "lqr-oracle", version)["weights"])
     except (ValueError, KeyError, TypeError):
         weights = LQRWeights()
     try:
-        g = lqr_gains(cfg.base_params.replace(**centre), weights)
+        g = lqr_gains(cfg.base_params.replace(**centre), weights, dt_s=None if cfg.loop is None else cfg.loop.dt_s)
         if np.all(np.isfinite(g)) and np.all(g > 0):
             starts.append(np.log10(np.minimum(g, [1e7, 1e10, 300.0, 1e-2]))[None, :])
     except (np.linalg.LinAlgError, ValueError):
         pass
+    if pid is not None:
+        from millvib_env.training.tuning import PF_BOUNDS
+
+        starts.append(np.r_[np.asarray(pid, float)[:3], math.log10(PF_BOUNDS["kpl"][0])][None, :])
     return np.concatenate(starts)
 
 
-def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trials: int, say) -> dict[str, Any]:
+def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trials: int, say,
+                      version: str = "v0") -> dict[str, Any]:
     """pid-nominal and pid-robust (those in `todo`) tuned by Optuna studies in `storage`."""
     from millvib_env.training.tuning import tune_optuna
 
@@ -90,7 +97,7 @@ def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trial
         if name in todo:
             say(f"tuning {name} with Optuna ({storage}) ...")
             res = tune_optuna(s, task=t.name, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
-                              params=pinned)
+                              params=pinned, version=version)
             out[name] = {**res, "seeds": [s[0], s[-1]],
                          "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
     return out
@@ -98,7 +105,7 @@ def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trial
 
 def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
-              progress: bool = True) -> dict[str, Any]:
+              progress: bool = True, version: str = "v0") -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config)."""
@@ -122,16 +129,16 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         return entry
 
     if optuna:
-        out.update(_tune_with_optuna(t, seeds, todo, optuna, trials, say))
+        out.update(_tune_with_optuna(t, seeds, todo, optuna, trials, say, version))
         todo = [n for n in todo if n not in out]
     if "pid-nominal" in todo:
         say("tuning pid-nominal on the nominal plant ...")
-        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT)
+        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT, version=version)
         out["pid-nominal"] = _gain_entry(res, seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, "
                                                                 "Ct = 5e-16), 8 disturbance draws")
     if "pid-robust" in todo:
         say("tuning pid-robust over 32 tuning plants ...")
-        res = tune(seeds["robust"], task=t.name)
+        res = tune(seeds["robust"], task=t.name, version=version)
         out["pid-robust"] = _gain_entry(res, seeds["robust"], "one set of gains minimising the mean cost over 32 "
                                                               "plants of the task")
     if from_task:  # the oracles' tables, shared with another task
@@ -142,33 +149,37 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         out["pid-oracle"] = _tuned_table(t, grid, "pid-oracle", seeds["oracle"], progress, (
             "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
             "(log c1, log Ct) between grid points"),
-            lambda plant: tune(seeds["oracle"], task=t.name, params=plant, refine_iters=40))
+            lambda plant: tune(seeds["oracle"], task=t.name, params=plant, refine_iters=40, version=version), version)
     if "lqr-oracle" in todo:
         say("tuning lqr-oracle weights ...")
-        res = tune_lqr(seeds["robust"], task=t.name)
+        res = tune_lqr(seeds["robust"], task=t.name, version=version)
         out["lqr-oracle"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
                              "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant "
                                     "designs over 32 tuning plants"}
     if "pid-adaptive" in todo:
         say("tuning pid-adaptive forgetting time ...")
-        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle")))
+        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle")), version=version)
         out["pid-adaptive"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
                                "how": "estimator forgetting time constant with the lowest mean cost over 32 "
                                       "tuning plants; gains from the pid-oracle table at the estimate"}
     if "pid-pf-robust" in todo:
         say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
-        res = tune_from(_pf_starts(t, seeds["robust"]), seeds["robust"], task=t.name, refine_iters=200)
+        pid = (out.get("pid-robust") or shipped.get("pid-robust") or {}).get("log10_gains")
+        res = tune_from(_pf_starts(t, seeds["robust"], version, pid), seeds["robust"], task=t.name, refine_iters=200,
+                        version=version)
         out["pid-pf-robust"] = _gain_entry(res, seeds["robust"], (
             "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
-            "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5) and the LQR "
-            "design of the centre plant, refined by Nelder-Mead (200 iterations, KD <= 300)"))
+            "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5), the LQR "
+            "design of the centre plant and pid-robust with KPL = 1e-8, refined by Nelder-Mead (200 iterations, "
+            "KD <= 300)"))
         say(f"  {out['pid-pf-robust']['gains']} cost {res.cost:.4f}")
     if "pid-pf-ff" in todo:
         say("tuning pid-pf-ff (pid-pf-robust + force feedforward) over 32 tuning plants ...")
         base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
         ap = _area(t)
         kff = np.log10(10.0 ** base[3] / ap * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
-        res = tune_from(np.array([np.r_[base, k] for k in kff]), seeds["robust"], task=t.name, refine_iters=250)
+        res = tune_from(np.array([np.r_[base, k] for k in kff]), seeds["robust"], task=t.name, refine_iters=250,
+                       version=version)
         out["pid-pf-ff"] = _gain_entry(res, seeds["robust"], (
             "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
             "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "
@@ -182,15 +193,16 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
             "bilinearly in (log c1, log Ct). With 6 draws per plant (as pid-oracle) the table overfitted: 1.083 "
             "on the rolling validation plants against 0.993 for pid-pf-robust"),
             lambda plant: tune_from(base[None, :], seeds["pf-oracle"], task=t.name, refine_iters=60,
-                                    step_decades=0.2, params=plant))
+                                    step_decades=0.2, params=plant, version=version), version)
     return out
 
 
-def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool, how: str, tune_plant) -> dict:
+def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool, how: str, tune_plant,
+                 version: str = "v0") -> dict:
     """A per-plant gain table on the oracle grid: `tune_plant({"c1", "Ct"})` (a TuneResult) for each grid plant."""
     from tqdm.auto import tqdm
 
-    c1_grid, ct_grid, cells = _oracle_grid(t, grid)
+    c1_grid, ct_grid, cells = _oracle_grid(t, grid, version)
     results = {}
     for i, j in tqdm(cells, desc=f"tuning {name} grid", unit="plant", disable=not progress):
         results[i, j] = tune_plant({"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
@@ -205,13 +217,13 @@ def _area(t: Task) -> float:
     return float(task_config(t).base_params.Ap)
 
 
-def _oracle_grid(t: Task, n: int):
-    """The oracle tables' grid: n x n over the paper's (log c1, log Ct) ranges (the startup task's
-    draw), whatever the task: a table is a property of plants, and the `change` task's plants move
+def _oracle_grid(t: Task, n: int, version: str = "v0"):
+    """The oracle tables' grid: n x n over the (log c1, log Ct) ranges of the startup task's draw in the
+    version, whatever the task: a table is a property of plants, and the `change` task's plants move
     over the whole range."""
     from millvib_env.envs.config import task_config
 
-    dists = {d.name: d for d in task_config("startup").randomize}
+    dists = {d.name: d for d in task_config("startup", version).randomize}
     c1_grid = np.geomspace(dists["c1"].low, dists["c1"].high, n)
     ct_grid = np.geomspace(dists["Ct"].low, dists["Ct"].high, n)
     return c1_grid, ct_grid, [(i, j) for i in range(n) for j in range(n)]
@@ -262,7 +274,7 @@ def merge_entries(shipped: dict, tuned: dict, *, force: bool = False) -> tuple[d
 def tune_from_cli(args) -> int:
     import yaml
 
-    from millvib_env._paths import check_output, config_dir, write_text_atomic
+    from millvib_env._paths import check_output, write_text_atomic
     from millvib_env._yaml import load_yaml
 
     t = get_task(args.task)
@@ -275,7 +287,10 @@ def tune_from_cli(args) -> int:
         raise ValueError(f"--trials {args.trials} is invalid: a whole number >= 1")
     if not 2 <= args.grid <= 12:
         raise ValueError(f"--grid {args.grid} is invalid: 2-12 points per axis")
-    shipped_path = config_dir() / "control" / f"{t.name}.yaml"
+    from millvib_env.control.factory import control_config_path
+
+    version = args.env_version
+    shipped_path = control_config_path(t.name, version)
     target = shipped_path if args.write_config else Path(args.out)
     check_output(str(target), "--out")
     shipped = load_yaml(shipped_path, "control config") if shipped_path.is_file() else {}
@@ -283,13 +298,13 @@ def tune_from_cli(args) -> int:
         raise ValueError(f"{shipped_path} must be a mapping of entries")
     start = time.time()
     tuned = tune_task(t.name, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
-                      trials=args.trials, shipped=shipped, progress=not args.quiet)
+                      trials=args.trials, shipped=shipped, progress=not args.quiet, version=version)
     merged, notes = merge_entries(shipped, tuned, force=args.force)
-    merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um, gain-schedule env "
-                              f"config {t.config}, gains held fixed")
+    merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um (a diverged episode: at "
+                              f"least 1000), gain-schedule env {version} config {t.config}, gains held fixed")
     merged["wall_time_s"] = round(time.time() - start, 1)
-    header = (f"# Written by `millvib tune --task {t.name}` (millvib_env.training.tune_task: the method of each "
-              "entry is in its `how`).\n")
+    header = (f"# Written by `millvib tune --task {t.name} --env-version {version}` (millvib_env.training.tune_task: "
+              "the method of each entry is in its `how`).\n")
     write_text_atomic(target, header + yaml.safe_dump(merged, sort_keys=False, width=110))
     for line in notes:
         print(line)

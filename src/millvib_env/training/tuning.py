@@ -17,6 +17,7 @@ from scipy import optimize
 
 from millvib_env.control.base import Controller
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, task_gain_map, wide_actions
+from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import load_env_config, task_config
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import run_episodes
@@ -33,9 +34,10 @@ class ActionTable(Controller):
 
     name = "gain-table"
 
-    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None):
+    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None, version: str = "v0"):
         self.actions = np.asarray(actions, dtype=np.float32)
         self.env_kwargs = dict(env_kwargs or {})
+        self.env_id = env_id_for("gain", version)
 
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
         return self.actions, state
@@ -59,22 +61,24 @@ def gain_env_kwargs(task: str, n_gains: int, params: dict | None = None) -> dict
 
 
 def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "startup",
-               params: dict | None = None, chunk: int = 4096) -> np.ndarray:
-    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`.
+               params: dict | None = None, chunk: int = 4096, version: str = "v0") -> np.ndarray:
+    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`,
+    in environment version `version`.
 
     `params` pins plant parameters (e.g. the nominal plant); otherwise each seed draws its plant.
-    Diverged episodes count with their (large) cost; a non-finite cost counts as 1e6.
+    Diverged episodes count with their scored cost (at least `DIVERGED_COST`: `evaluate.scored_cost`);
+    a non-finite cost counts as 1e6.
     """
     sets = np.atleast_2d(np.asarray(log_gain_sets, float))
     env_kwargs = gain_env_kwargs(task, sets.shape[1], params)
-    gain_map = GainMap.from_config(load_env_config(**env_kwargs))
+    gain_map = GainMap.from_config(load_env_config(**env_kwargs, version=version))
     m = len(seeds)
     costs = np.empty((sets.shape[0], m))
     actions = gain_map.action(10.0 ** sets)
     per_chunk = max(1, chunk // m)
     for start in range(0, sets.shape[0], per_chunk):
         block = actions[start:start + per_chunk]
-        table = ActionTable(np.repeat(block, m, axis=0), env_kwargs)
+        table = ActionTable(np.repeat(block, m, axis=0), env_kwargs, version)
         recs = run_episodes(table, list(seeds) * block.shape[0])
         c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
         costs[start:start + block.shape[0]] = c
@@ -82,7 +86,7 @@ def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "
 
 
 def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: dict | None = None,
-              refine_iters: int = 150, step_decades: float = 0.3) -> "TuneResult":
+              refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0") -> "TuneResult":
     """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
     Nelder-Mead within `PF_BOUNDS` on the plants `seeds`."""
     starts = np.atleast_2d(np.asarray(starts, float))
@@ -90,24 +94,24 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: di
     lo = np.log10([PF_BOUNDS[k][0] for k in names])
     hi = np.log10([PF_BOUNDS[k][1] for k in names])
     return _refine(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step_decades,
-                   xatol=0.01, fatol=1e-4, bounded=True)
+                   xatol=0.01, fatol=1e-4, bounded=True, version=version)
 
 
 def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: str,
             params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
-            bounded: bool) -> "TuneResult":
+            bounded: bool, version: str = "v0") -> "TuneResult":
     """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
     by Nelder-Mead; never worse than that start. `bounded`: Nelder-Mead within [lo, hi], its first
     simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains."""
     starts = np.clip(starts, lo, hi)
-    start_costs = mean_costs(starts, seeds, task=task, params=params)
+    start_costs = mean_costs(starts, seeds, task=task, params=params, version=version)
     best = starts[int(np.argmin(start_costs))]
     n_eval = len(starts)
 
     def objective(u: np.ndarray) -> float:
         nonlocal n_eval
         n_eval += 1
-        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params)[0])
+        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params, version=version)[0])
 
     dim = len(best)
     simplex = best + np.vstack([np.zeros(dim), step * np.eye(dim)])
@@ -138,25 +142,26 @@ class TuneResult:
 
 
 def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = None, grid=GRID,
-         refine_iters: int = 60) -> TuneResult:
+         refine_iters: int = 60, version: str = "v0") -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
     gain_map = task_gain_map(task)
     lo, hi = gain_map.log_lo, gain_map.log_hi
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
-                   xatol=0.02, fatol=1e-3, bounded=False)
+                   xatol=0.02, fatol=1e-3, bounded=False, version=version)
 
 
-def plants_of(seeds: Sequence[int], task: str) -> list:
+def plants_of(seeds: Sequence[int], task: str, version: str = "v0") -> list:
     """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
     from millvib_env.envs.batch import EpisodeBatch
 
-    batch = EpisodeBatch("MillVib-GainSchedule-v0", len(seeds), config=get_task(task).config)
+    batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=get_task(task).config)
     batch.reset(seeds)
     return list(batch.core.params)
 
 
-def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: int = 4096) -> np.ndarray:
+def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: int = 4096,
+              version: str = "v0") -> np.ndarray:
     """Mean episode cost of the LQR reference with each of `weight_sets` (LQRWeights) over `seeds`.
 
     Each plant's gains are designed for its true c1 and Ct, as `lqr-oracle` does; a design that
@@ -166,14 +171,16 @@ def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: 
     from millvib_env.control.policies import LQRPolicy
 
     env_kwargs = {"config": get_task(task).config, **LQRPolicy.ENV_KWARGS}
-    gain_map = GainMap.from_config(load_env_config(**env_kwargs))
-    plants = plants_of(seeds, task)
+    cfg = load_env_config(**env_kwargs, version=version)
+    gain_map = GainMap.from_config(cfg)
+    dt_s = None if cfg.loop is None else cfg.loop.dt_s
+    plants = plants_of(seeds, task, version)
     m = len(seeds)
     actions, ok = [], []
     for w in weight_sets:
         for p in plants:
             try:
-                g = lqr_gains(p, w)
+                g = lqr_gains(p, w, dt_s=dt_s)
                 ok.append(bool(np.all(np.isfinite(g))))
             except (np.linalg.LinAlgError, ValueError):
                 g, _ = np.zeros(4), ok.append(False)
@@ -185,7 +192,7 @@ def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: 
     for start in range(0, len(weight_sets), per_chunk):
         block = actions[start * m:(start + per_chunk) * m]
         k = len(block) // m
-        recs = run_episodes(ActionTable(block, env_kwargs), list(seeds) * k)
+        recs = run_episodes(ActionTable(block, env_kwargs, version), list(seeds) * k)
         costs[start:start + k] = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(k, m)
     costs[~ok] = 1e6
     return costs.mean(axis=1)
@@ -195,7 +202,7 @@ LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1
             "r": (0.1, 1.0, 10.0, 100.0), "friction": ("stick", "sliding")}
 
 
-def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict:
+def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40, version: str = "v0") -> dict:
     """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
     from millvib_env.control.lqr import LQRWeights
 
@@ -203,7 +210,7 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict
     grid = [dict(zip(keys + ("friction",), combo)) for combo in np.stack(np.meshgrid(
         *[np.arange(len(LQR_GRID[k])) for k in keys + ("friction",)], indexing="ij"), -1).reshape(-1, 5)]
     sets = [LQRWeights(**{k: LQR_GRID[k][int(c[k])] for k in keys + ("friction",)}) for c in grid]
-    costs = lqr_costs(sets, seeds, task=task)
+    costs = lqr_costs(sets, seeds, task=task, version=version)
     best = sets[int(np.argmin(costs))]
     n_eval = len(sets)
 
@@ -211,7 +218,7 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict
         nonlocal n_eval
         n_eval += 1
         return float(lqr_costs([LQRWeights(**dict(zip(keys, 10.0 ** u)), friction=best.friction)], seeds,
-                               task=task)[0])
+                               task=task, version=version)[0])
 
     x0 = np.log10([getattr(best, k) for k in keys])
     res = optimize.minimize(objective, x0, method="Nelder-Mead",
@@ -232,18 +239,20 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40) -> dict
 ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
 
 
-def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS, table=None) -> dict:
+def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS, table=None,
+                  version: str = "v0") -> dict:
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
     from millvib_env.control.factory import oracle_table
 
-    cfg = task_config(task)
-    table, gain_map = (oracle_table(task) if table is None else table), GainMap.from_config(cfg)
+    cfg = task_config(task, version)
+    table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
     costs = {}
     for tau in taus:
         ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params,
                               sample_rate_hz=cfg.sample_rate_hz)
+        ctrl.env_id = env_id_for("gain", version)
         recs = run_episodes(ctrl, list(seeds), task=task)
         costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
     tau = min(costs, key=costs.get)
@@ -271,7 +280,7 @@ def optuna_storage(storage: str):
 
 
 def tune_optuna(seeds: Sequence[int], *, task: str, storage: str, study_name: str, n_trials: int,
-                params: dict | None = None, sampler_seed: int | None = None) -> dict:
+                params: dict | None = None, sampler_seed: int | None = None, version: str = "v0") -> dict:
     """PID gains by an Optuna study (TPE) over log10 KP, KI, KD in the action bounds, minimising the
     mean cost on `seeds`; several processes or machines running this with the same storage and
     study name share the study. Returns the study's best gains so far."""
@@ -286,7 +295,7 @@ def tune_optuna(seeds: Sequence[int], *, task: str, storage: str, study_name: st
     def objective(trial) -> float:
         u = np.array([trial.suggest_float(name, lo[k], hi[k]) for k, name in enumerate(("log10_kp", "log10_ki",
                                                                                        "log10_kd"))])
-        return float(mean_costs(u[None, :], seeds, task=task, params=params)[0])
+        return float(mean_costs(u[None, :], seeds, task=task, params=params, version=version)[0])
 
     study.optimize(objective, n_trials=n_trials)
     best = np.array([study.best_params[k] for k in ("log10_kp", "log10_ki", "log10_kd")])
