@@ -13,7 +13,8 @@ import millvib_env
 from millvib_env.envs.scenarios import list_scenarios
 
 ENV_CASES = [("MillVib-GainSchedule-v0", {}), ("MillVib-Valve-v0", {}), ("MillVib-Valve-v0", {"residual": True}),
-             ("MillVib-GainSchedule-v1", {"config": "rolling"}), ("MillVib-Valve-v1", {"residual": True})]
+             ("MillVib-GainSchedule-v1", {"config": "rolling"}),
+             ("MillVib-Valve-v1", {"residual": True, "episode_s": 0.2})]  # 400 steps of 0.5 ms an episode
 
 
 @pytest.mark.parametrize("env_id, kwargs", ENV_CASES)

@@ -79,8 +79,19 @@ def test_the_json_schema_and_the_comparisons(tmp_path):
                    "--episodes", "6", "--quiet", "--json", str(out), "--seed", "3"])
     assert rc == 0
     data = json.loads(out.read_text())
-    assert {"controllers", "task", "seed", "episodes", "env_id", "plants", "all_seeds"} <= set(data)
+    assert {"controllers", "task", "seed", "episodes", "env_id", "plants", "all_seeds", "env_version", "loop"} <= set(data)
     assert data["seed"] == 3 and data["episodes"] == 6 and len(data["plants"]) == 6
+    # the loop as commissioned by default: its settings, and what each controller asked of the actuator
+    assert data["env_version"] == "v1" and data["env_id"] == "MillVib-GainSchedule-v1"
+    loop = data["loop"]
+    assert loop["kind"] == "digital" and loop["rate_hz"] == 2000 and loop["delay_samples"] == 1
+    assert loop["u_max_v"] == 10 and loop["valve"]["natural_frequency_hz"] == 150 and "sensors" in loop
+    for name, s in data["controllers"].items():
+        assert set(s["command"]["max_abs_v"]) == {"median", "p95", "max"}, name
+        assert s["command"]["max_abs_v"]["max"] <= loop["u_max_v"], name  # no command leaves the range
+        assert 0.0 <= s["command"]["share_at_limit"] <= 1.0
+        assert s["spool_stroke_m"]["max"] <= loop["valve"]["xv_max_m"] * (1 + 1e-12)
+        assert s["n_diverged"] == 0 and {"peak_flow_ratio", "pressure_pa"} <= set(s)
     for name, s in data["controllers"].items():
         assert SCHEMA <= set(s), name
         assert s["n_seeds"] == 1 and s["episodes"] == 6

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import json
 import sys
 from pathlib import Path
@@ -98,7 +99,12 @@ def _plot_run(run, path: Path) -> None:
     ax[1, 0].set(xlabel="t (ms)", ylabel="MPa", title="chamber and supply pressure")
     ax[1, 0].legend()
     ax[1, 1].plot(run.t * 1e3, run.u)
-    ax[1, 1].set(xlabel="t (ms)", ylabel="u (V)", title="valve command")
+    title_u = "valve command"
+    if math.isfinite(run.params.u_max):  # the amplifier's range, which no command leaves
+        for sign in (-1, 1):
+            ax[1, 1].axhline(sign * run.params.u_max, color="k", ls="--", lw=0.8)
+        title_u += f" (limit +-{run.params.u_max:g} V dashed)"
+    ax[1, 1].set(xlabel="t (ms)", ylabel="u (V)", title=title_u)
     for a in ax.flat:
         a.grid(alpha=0.3)
     p = run.params

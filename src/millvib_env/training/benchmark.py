@@ -451,8 +451,9 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | No
         axes[0].set(ylabel="x (um)", title=f"Task '{task}', held-out plant {seed}: {tr['info']['params']}"[:110])
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
-    axes[2].set(ylabel="valve command u (V)" + (f"; limit +-{u_max:g} V dashed" if math.isfinite(u_max) else ""))
-    axes[3].set(ylabel="log10 KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
+    axes[2].set(ylabel="u (V)", title="valve command" + (f" (the amplifier's +-{u_max:g} V dashed)"
+                                                          if math.isfinite(u_max) else ""))
+    axes[3].set(ylabel="log10 KP", title="the PID's KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()

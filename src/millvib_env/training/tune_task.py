@@ -158,7 +158,8 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
                                     "designs over 32 tuning plants"}
     if "pid-adaptive" in todo:
         say("tuning pid-adaptive forgetting time ...")
-        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle")), version=version)
+        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle"), version),
+                            version=version)
         out["pid-adaptive"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
                                "how": "estimator forgetting time constant with the lowest mean cost over 32 "
                                       "tuning plants; gains from the pid-oracle table at the estimate"}
@@ -235,12 +236,12 @@ def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
             "seeds": [seeds[0], seeds[-1]], "how": how}
 
 
-def _table(entry: dict):
+def _table(entry: dict, version: str = "v0"):
     from millvib_env.control.base import GainTable
     from millvib_env.control.factory import oracle_table
 
     if "from_task" in entry:
-        return oracle_table(entry["from_task"])
+        return oracle_table(entry["from_task"], version=version)
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
