@@ -114,9 +114,7 @@ READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
                                     "2", "--no-scenarios", "--quiet"],
            "control/v1/startup.yaml": ["benchmark", "--controllers", "pid-robust", "--episodes", "2",
                                        "--no-scenarios", "--quiet"],
-           "env/v1/loop.yaml": ["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios",
-                                "--quiet"],
-           "plant/commissioned.yaml": ["simulate", "--preset", "commissioned", "--t-end", "0.2"],
+
            "agents/ppo.yml": ["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"]}
 
 

@@ -22,8 +22,8 @@ def peak_error(a, b):
 def test_reference_agrees_with_an_independent_method_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
-    lsoda = simulate_batch(params, gains, 0.1, method="reference", rtol=1e-10)
-    radau = simulate_batch(params, gains, 0.1, method="reference", ivp_method="Radau", rtol=1e-10)
+    lsoda = simulate_batch(params, gains, 0.05, method="reference", rtol=1e-10)
+    radau = simulate_batch(params, gains, 0.05, method="reference", ivp_method="Radau", rtol=1e-10)
     for (label, _, _), a, b in zip(paper_cases, lsoda, radau):
         assert not a.diverged and not b.diverged
         assert peak_error(a, b) <= 1e-6, label

@@ -121,6 +121,7 @@ FUZZ_FLAGS = {
 }
 
 
+@pytest.mark.slow  # a wide fuzz: 40 CLI runs
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(command=st.sampled_from(sorted(FUZZ_FLAGS)), data=st.data())

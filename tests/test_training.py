@@ -78,6 +78,8 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
                                                           else "stable_baselines3", "sbx": "sbx"}[backend]
     recs = run_episodes(agent, [0, 1])
     assert all(np.isfinite(r["cost"]) for r in recs)
+    if backend == "sbx" and algo == "ppo":
+        return  # resuming is the same code for both backends (checkpoints, VecNormalize, the card); once per backend
     resumed = train(algo, seed=3, n_timesteps=512, resume=True, **kw)
     assert resumed["n_timesteps"] >= 512
 
