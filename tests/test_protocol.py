@@ -79,7 +79,8 @@ def test_the_json_schema_and_the_comparisons(tmp_path):
                    "--episodes", "6", "--quiet", "--json", str(out), "--seed", "3"])
     assert rc == 0
     data = json.loads(out.read_text())
-    assert {"controllers", "task", "seed", "episodes", "env_id", "plants", "all_seeds", "env_version", "loop"} <= set(data)
+    assert {"controllers", "task", "seed", "episodes", "env_id", "plants", "all_seeds", "env_version",
+            "loop"} <= set(data)
     assert data["seed"] == 3 and data["episodes"] == 6 and len(data["plants"]) == 6
     # the loop as commissioned by default: its settings, and what each controller asked of the actuator
     assert data["env_version"] == "v1" and data["env_id"] == "MillVib-GainSchedule-v1"
