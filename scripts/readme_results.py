@@ -38,7 +38,14 @@ def full_block(md: str) -> list[str]:
     if spread:
         block += ["", lines[spread[0]], ""] + _table(lines, spread[0] + 2)
     note = [x for x in lines if x.startswith("On this task pid-oracle")][:1]
-    return block + (["", *note] if note else [])
+    block += ["", *note] if note else []
+    room = [i for i, x in enumerate(lines) if x.startswith("The room to learn")]
+    if room:
+        end = next(i for i, x in enumerate(lines) if x.startswith("Vibration detail"))
+        block += [""] + [x for x in lines[room[0]:end]]
+        while block and not block[-1].strip():
+            block.pop()
+    return block
 
 
 def _pct(d: dict | None, key: str, ci: str) -> str:
@@ -57,6 +64,14 @@ def headline_block(data: dict) -> list[str]:
         lines.append(f"| {shown} | {s['n_seeds']} | {mean} | {cvar} | {_pct(paired.get(ref), 'cost_diff_rel', 'ci')} | "
                      f"{_pct(paired.get(ref), 'cvar20_diff_rel', 'cvar20_ci')} | "
                      f"{_pct(paired.get('pid-robust'), 'cost_diff_rel', 'ci')} |")
+    room = data.get("room")
+    if room:
+        lines += ["", "| bound | room, mean | room, CVaR-20 |", "|---|---|---|"]
+        pct = lambda v: f"{100 * v:+.1f} %"  # noqa: E731
+        for name, b in room["bounds"].items():
+            lines.append(f"| {name} | {pct(b['room_mean'])} [{pct(b['room_mean_ci'][0])}, {pct(b['room_mean_ci'][1])}]"
+                         f" | {pct(b['room_cvar20'])} [{pct(b['room_cvar20_ci'][0])}, "
+                         f"{pct(b['room_cvar20_ci'][1])}] |")
     return lines
 
 

@@ -220,6 +220,32 @@ def _cmd_tune(args) -> int:
     return tune_from_cli(args)
 
 
+def _cmd_distill(args) -> int:
+    import sys
+
+    from pathlib import Path
+
+    from millvib_env._paths import agents_dir, check_result_folder
+    from millvib_env.control.manifest import AGENT_FILES, write_manifest
+    from millvib_env.training.distill import distill
+
+    check_result_folder(args.save_dir, "--save-dir", "distill", own_files=AGENT_FILES)
+    card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
+                   episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
+                   command="millvib " + " ".join(sys.argv[1:]))
+    print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
+    if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
+        print(f"updated {write_manifest()}")
+    print(f"wrote {args.save_dir}")
+    return 0
+
+
+def _cmd_headroom(args) -> int:
+    from millvib_env.training.benchmark import headroom_from_cli
+
+    return headroom_from_cli(args)
+
+
 def _cmd_benchmark(args) -> int:
     from millvib_env.training.benchmark import benchmark_from_cli
 
@@ -315,6 +341,15 @@ def build_parser() -> argparse.ArgumentParser:
         "for startup, on every named scenario; report cost (mean and CVaR-20), severity (mean, p95, first "
         "0.1 s, rest, pump line, 10-100 Hz), ISO zones, tracking RMS and divergence. With no arguments: every "
         "baseline and every shipped agent of the startup task.")), _cmd_benchmark)
+    add_benchmark_args(sub.add_parser("headroom", help="the room to learn on a task: classical controllers against "
+                                      "the bounds", description=(
+        "How much any controller could gain on a task of the loop as commissioned (v1): the deployable classical "
+        "controllers (pid-paper, pid-nominal, pid-robust, pid-adaptive, pid-pf-robust, pid-pf-ff) and the bounds "
+        "that know the plant (pid-pf-oracle: per-plant re-tuned PID + pressure feedback; lqr-oracle; mpc-oracle: "
+        "model-predictive control of the valve with the plant's true state, within +-10 V; mpc-preview: the same "
+        "with the disturbances' course over its horizon) on the same held-out plants. Prints the benchmark's "
+        "table with the room: (reference - bound) / reference on the mean and the CVaR-20, with paired 95 % "
+        "intervals, and each controller's share of it. --controllers adds or replaces rows.")), _cmd_headroom)
     from millvib_env.training.tune_task import ENTRIES, __doc__ as tune_doc
 
     p = sub.add_parser("tune", help="tune a task's classical baselines", description=tune_doc,
@@ -339,6 +374,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="replace entries even where this run's tuning cost is worse than theirs")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=_cmd_tune)
+
+    from millvib_env.training.distill import __doc__ as distill_doc
+
+    p = sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
+                       description=distill_doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", default="rolling", help="task: startup, rolling, change or varied (default rolling)")
+    p.add_argument("--teacher", default="mpc-preview", choices=["mpc-preview", "mpc-oracle"],
+                   help="the oracle that labels every loop sample (default mpc-preview)")
+    p.add_argument("--baseline", default=None, choices=["mpc-oracle"],
+                   help="label with the teacher's command less this oracle's, from the same state (what the "
+                        "preview adds), instead of less the digital PID's own command (default: the PID's)")
+    p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
+    p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
+    p.add_argument("--episodes", type=int, default=20, help="training episodes per iteration (default 20)")
+    p.add_argument("--epochs", type=int, default=15, help="least-squares epochs per iteration (default 15)")
+    p.add_argument("--save-dir", required=True, metavar="DIR",
+                   help="the agent folder to write (under agents/ the manifest is updated)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_distill)
 
     p = sub.add_parser("sweep", help="controllers over many plants", description=(
         "A robustness sweep: every controller on N plants of a task with the swept parameters drawn over wide "

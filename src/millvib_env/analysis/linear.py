@@ -35,7 +35,7 @@ from scipy import optimize
 from millvib_env._checks import instance, real, reals
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_XV, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES, VALVE_STATES,
+from millvib_env.plant.model import (A_XV, C_DFL, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES, VALVE_STATES,
                                      balanced_pressure, drive_vector, pack, plant_rhs, settled_state,
                                      state_scale)
 
@@ -172,13 +172,15 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
 
 @dataclass(frozen=True)
 class StateSpace:
-    """The open-loop plant linearised at steady operation: dx/dt = A x + B u, y = C x + D u.
+    """The open-loop plant linearised at steady operation: dx/dt = A x + B u + E d, y = C x + D u.
 
-    States (x, v, pL) are deviations from the operating point (m, m/s, Pa); the input is the
-    servo-amplifier command's deviation from the one that holds the operating point (V); the
-    outputs are the three measured states. `op` is the operating point (its uI is the command
-    that feeds the leak). `to_control()` gives a python-control `StateSpace` where that package
-    is installed.
+    States (x, v, pL, and the spool's xs, vs for a valve with dynamics) are deviations from the
+    operating point (m, m/s, Pa, m, m/s); the input is the servo-amplifier command's deviation from
+    the one that holds the operating point (V); the outputs are the three measured states. `E` maps
+    the disturbances `disturbances` (the rolling force's deviation from FL, N, and the supply
+    pressure's from its mean, Pa: the pump's ripple) into the states. `op` is the operating point (its
+    uI is the command that feeds the leak). `to_control()` gives a python-control `StateSpace` (without
+    E) where that package is installed.
     """
 
     A: np.ndarray
@@ -189,6 +191,8 @@ class StateSpace:
     states: tuple[str, ...] = ("x", "v", "pL")
     inputs: tuple[str, ...] = ("u",)
     outputs: tuple[str, ...] = ("x", "v", "pL")
+    E: np.ndarray | None = None
+    disturbances: tuple[str, ...] = ("force", "supply")
 
     @property
     def u0(self) -> float:
@@ -207,14 +211,20 @@ class StateSpace:
                           outputs=list(self.outputs))
 
 
-def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stick") -> StateSpace:
-    """A, B, C, D of the open-loop plant (valve command -> position, velocity, pressure) at rest at `xd`.
+def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stick",
+              du: float | None = None) -> StateSpace:
+    """A, B, C, D and E of the open-loop plant (valve command -> position, velocity, pressure) at rest at `xd`.
 
     The operating point is `plant.model.settled_state` (the load held by pL, the leak fed by the
     command u0) with the mean supply pressure; the matrices are numerical derivatives of the one
     `plant_rhs` with the PID switched off and the command given as an external input. The
     friction linearisation is chosen as for `jacobian` (stick: the bristle spring folded into x;
-    sliding: saturated bristles).
+    sliding: saturated bristles). The orifice's gain differs between opening (towards the supply,
+    ps - pL across it) and closing (towards the tank, pL). By default the matrices hold the local slope
+    (the side the operating point's opening is on); `du` (V) replaces it by the secant over u0 +- du
+    (ideal valve: B; a valve with dynamics: A's column of the spool position, over the opening that
+    du commands), which across a small u0 takes both sides. E: central differences in the rolling force
+    and the supply pressure.
     """
     _check_plant(params)
     xd = _check_xd(params, xd)
@@ -231,14 +241,32 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
 
     scale = state_scale(params)
     J = _numerical_jacobian(f_of(u0), y0, scale, friction)
-    du = 1e-3 * max(abs(u0), 1.0)
+    secant = du is not None
+    du = 1e-3 * max(abs(u0), 1.0) if du is None else real("du", du, lo=0.0, lo_open=True, hi=params.u_max)
     b = (f_of(u0 + du)(y0) - f_of(u0 - du)(y0)) / (2 * du)
+    if secant and not params.ideal_valve:
+        dxs = du * params.xv_per_volt
+        yp, ym = y0.copy(), y0.copy()
+        yp[IXS] += dxs
+        ym[IXS] -= dxs
+        J[:, IXS] = (f_of(u0)(yp) - f_of(u0)(ym)) / (2 * dxs)
     keep = [IX, IV, IPL] + ([] if params.ideal_valve else list(VALVE_STATES))
     A = J[np.ix_(keep, keep)]
     B = b[keep][:, None]
+    c0 = drive_vector(PIDGains(0.0), xd=xd, u_ext=u0, pid_on=False)
+    dF = 1e-3 * params.FL
+    e_force = np.zeros(NY)
+    for sign in (1.0, -1.0):
+        c = c0.copy()
+        c[C_DFL] = sign * dF
+        e_force += sign * rhs_vector(0.0, y0, p, c) / (2 * dF)
+    dps = 1e-3 * params.ps
+    e_ps = (rhs_vector(0.0, y0, pack(mean.replace(ps=params.ps + dps)), c0)
+            - rhs_vector(0.0, y0, pack(mean.replace(ps=params.ps - dps)), c0)) / (2 * dps)
+    E = np.column_stack([e_force[keep], e_ps[keep]])
     op = OperatingPoint(y=y0, xd=xd, friction=friction, integral="settled")
     return StateSpace(A=A, B=B, C=np.eye(len(keep))[:3], D=np.zeros((3, 1)), op=op,
-                      states=tuple(STATE_NAMES[i] for i in keep))
+                      states=tuple(STATE_NAMES[i] for i in keep), E=E)
 
 
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",

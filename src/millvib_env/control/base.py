@@ -24,6 +24,9 @@ class Controller:
     recurrent = False
     #: True: the evaluation loop asks the env for every step's measured signals (info["signals"])
     needs_signals = False
+    #: True: an oracle that reads the plant itself (its true state, parameters and disturbances): the
+    #: evaluation loop hands it the environments' core with `attach` before the first reset
+    reads_plant = False
     task: str | None = None
 
     def env_kwargs_for(self, task: str | None = None, env_kwargs: dict | None = None) -> dict:
@@ -40,6 +43,9 @@ class Controller:
         are made for it: a plain loop ``obs, info = env.reset(seed=s)``, ``action, _ =
         ctrl.predict(obs)``, ``env.step(action)`` gives the benchmark's episode on seed s."""
         return ControllerLoop(gym.make(self.env_id, **self.env_kwargs_for(self.task, env_kwargs)), self)
+
+    def attach(self, core) -> None:
+        """Called once with the environments' core (`envs.core.MillVibCore`) where `reads_plant`."""
 
     def on_reset(self, infos: Sequence[dict], indices: Sequence[int]) -> None:
         """Called with the reset infos of the environments that just started an episode."""
@@ -124,6 +130,8 @@ class ControllerLoop(gym.Wrapper):
         super().__init__(env)
         self.controller = controller
         env.unwrapped.core.record_signals = bool(controller.needs_signals)
+        if controller.reads_plant:
+            controller.attach(env.unwrapped.core)
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)

@@ -61,6 +61,27 @@ def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> Ga
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
+def _mpc(name: str, task: str, version: str) -> Controller:
+    """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`)."""
+    from millvib_env.control.mpc import MPCPolicy, MPCSettings
+
+    if version == "v0":
+        raise ValueError(f"{name} runs on the loop as commissioned: use environment version v1, not v0")
+    entry = control_entry(task, name, version)
+    settings = entry.get("settings") if isinstance(entry, dict) else None
+    if not isinstance(settings, dict):
+        raise ValueError(f"{control_config_path(task, version)} {name}.settings = {settings!r:.60} is invalid: "
+                         "a mapping of MPCSettings fields")
+    fields = [f for f in MPCSettings.__dataclass_fields__ if f != "preview"]
+    unknown = sorted(str(k) for k in settings if k not in fields)
+    if unknown:
+        raise ValueError(f"{control_config_path(task, version)} {name}.settings has unknown keys {unknown}: "
+                         f"allowed {fields}")
+    ctrl = MPCPolicy(name, MPCSettings(**{**settings, "preview": name == "mpc-preview"}), version)
+    ctrl.task = task
+    return ctrl
+
+
 def load_controller(name: str, task: str | None = None, config: EnvConfig | None = None,
                     seed: int | None = None, version: str = "v0") -> Controller:
     """A controller by name for `task`: a baseline (`BASELINES`), a shipped agent (agents/<name>) or
@@ -103,6 +124,8 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
 
         entry = control_entry(task, name, version)
         ctrl = LQRPolicy(LQRWeights(**entry["weights"]), cfg.base_params, task, loop=cfg.loop)
+    elif name in ("mpc-oracle", "mpc-preview"):
+        return _mpc(name, task, version)
     elif name == "pid-adaptive":
         from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 

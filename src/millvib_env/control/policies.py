@@ -28,7 +28,7 @@ from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
 
-__all__ = ["FixedGainPolicy", "OraclePolicy", "LQRPolicy", "REFERENCE", "BASELINES", "baseline_names"]
+__all__ = ["FixedGainPolicy", "OraclePolicy", "LQRPolicy", "REFERENCE", "BASELINES", "LOOP_ONLY", "baseline_names"]
 
 #: every baseline by name, with what it is
 BASELINES = {
@@ -45,7 +45,14 @@ BASELINES = {
                  "tuned together: the classical opponent of a controller that reads the load cells",
     "pid-pf-oracle": "knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
                      "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
+    "mpc-oracle": "knows the plant, its state and the disturbances now; model-predictive control of the valve at the "
+                  "loop's rate within +-u_max (control.mpc): the bound for a controller of any structure; not "
+                  "deployable; v1 only",
+    "mpc-preview": "mpc-oracle that also knows the disturbances' and the set-point's course over its horizon (an "
+                   "entry gauge's preview, made exact); not deployable; v1 only",
 }
+#: baselines that need the sampled loop (environment version v1)
+LOOP_ONLY = ("mpc-oracle", "mpc-preview")
 #: the benchmark's default reference: the strongest deployable classical controller
 REFERENCE = "pid-pf-robust"
 
@@ -123,5 +130,6 @@ class LQRPolicy(PerEnvGains):
         return g
 
 
-def baseline_names() -> list[str]:
-    return list(BASELINES)
+def baseline_names(version: str | None = None) -> list[str]:
+    """Every baseline's name; with `version`, those that run in that environment version."""
+    return [n for n in BASELINES if version != "v0" or n not in LOOP_ONLY]

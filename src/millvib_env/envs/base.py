@@ -239,7 +239,11 @@ class ValveEnv(MillVibEnv):
     ``Box(-1, 1, (6,), float32)`` (7 in residual mode): channels 0-4 as in `GainScheduleEnv`
     (error, velocity, acceleration, pressure, running band-limited vibration), then the last
     action; in residual mode also the PID's own command (V / residual range, clipped). Optional
-    pump phase, true parameters and the load cells' force as in `GainScheduleEnv`.
+    pump phase, true parameters and the load cells' force as in `GainScheduleEnv`. Optional preview
+    (``observation.preview_samples``, a list of look-aheads k in control samples): per k, the rolling
+    force's change (signed-log, as the force channel) and the set-point's change (signed-log, as the
+    error) from the hold that starts now to the one k samples ahead, from the episode's own course:
+    what an entry-thickness gauge upstream of the stand and the pass schedule tell a controller.
 
     ## Rewards
 

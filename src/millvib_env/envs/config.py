@@ -101,6 +101,12 @@ class ObservationSettings:
     params: bool = False  # the true c1 and Ct (privileged)
     phase: bool = False   # the pump's phase
     force: bool = False   # the load cells' force
+    #: a preview: the rolling force's and the set-point's change from now to this many control samples ahead
+    #: (an entry-thickness gauge upstream of the stand and the pass schedule); empty: none
+    preview_samples: tuple = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "preview_samples", tuple(int(k) for k in self.preview_samples))
 
 
 @dataclass(frozen=True)
@@ -226,6 +232,20 @@ def _bounds(lo: float, hi: float, lo_open: bool) -> str:
     if hi < math.inf:
         parts.append(f"<= {hi:g}")
     return (" " + " and ".join(parts)) if parts else ""
+
+
+#: the farthest preview an observation may carry (control samples)
+MAX_PREVIEW_SAMPLES = 400
+
+
+def _preview(path: str, value: Any) -> list:
+    """A strictly increasing list of look-aheads in control samples, each in [1, MAX_PREVIEW_SAMPLES]."""
+    if not isinstance(value, (list, tuple)) or len(value) > 32:
+        _fail(path, value, f"must be a list of at most 32 increasing integers in [1, {MAX_PREVIEW_SAMPLES}]")
+    out = [int(_number(f"{path}[{i}]", v, lo=1, hi=MAX_PREVIEW_SAMPLES, integer=True)) for i, v in enumerate(value)]
+    if any(b <= a for a, b in zip(out, out[1:])):
+        _fail(path, value, "must be strictly increasing")
+    return out
 
 
 def _bool(path: str, value: Any) -> bool:
@@ -450,7 +470,8 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
         "p_min_pa": lambda pp, vv: _number(pp, vv, hi=0.0), "p_max_factor": lambda pp, vv: _number(
             pp, vv, lo=1.0, hi=9.0, lo_open=True)},
         required=("x_max_m", "p_min_pa", "p_max_factor")),
-    "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool}),
+    "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool,
+                                                "preview_samples": _preview}),
 }
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",

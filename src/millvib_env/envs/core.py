@@ -99,7 +99,8 @@ class MillVibCore:
         self.action_space = spaces.Box(-1.0, 1.0, (self.act_dim,), dtype=np.float32)
         self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
                                  observe_phase=observe_phase, observe_params=observe_params,
-                                 observe_force=self.observe_force, noise=noise, delay=delay, n=self.n)
+                                 observe_force=self.observe_force, noise=noise, delay=delay, n=self.n,
+                                 preview_samples=seen.preview_samples)
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
@@ -363,7 +364,24 @@ class MillVibCore:
         return self.observer.build(idx, self.noise_rng, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
                                    u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
-                                   params=params, force=self._observed_force(idx) if self.observe_force else None)
+                                   params=params, force=self._observed_force(idx) if self.observe_force else None,
+                                   preview=self.preview(idx) if self.observer.preview_samples else None)
+
+    def preview(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The preview of environments `idx` (`ObservationSettings.preview_samples`): the rolling force's change
+        (N: force steps and eccentricity) and the set-point's (m) from the hold that starts now to the one that
+        starts k control samples ahead, for each look-ahead k; beyond the episode's end the last values hold."""
+        ks = np.asarray(self.observer.preview_samples)
+        now = self.k[idx] * self.n_sub
+        last = self.DFL.shape[1] - 1
+        cols = np.minimum(now[:, None] + ks[None, :], last)
+        rows = np.asarray(idx)[:, None]
+        dt = self.cfg.control_dt_s
+        t_now = self.T[idx]
+        force_now = self.DFL[idx, np.minimum(now, last)] + self._eccentricity(idx, t_now)
+        force_then = self.DFL[rows, cols] + self._eccentricity(rows, t_now[:, None] + ks[None, :] * dt)
+        xd_now = self.XD[idx, np.minimum(now, last)]
+        return force_then - force_now[:, None], self.XD[rows, cols] - xd_now[:, None]
 
     def _observed_force(self, idx: np.ndarray) -> np.ndarray:
         """The force channel: the load cells' reading in the sampled loop, else the true deviation."""

@@ -48,7 +48,8 @@ class Observer:
     """Builds the observation vectors of a batch of environments in one mode."""
 
     def __init__(self, mode: str, *, residual: bool, gain_names: tuple[str, ...], observe_phase: bool,
-                 observe_params: bool, noise, delay: int, n: int, observe_force: bool = False):
+                 observe_params: bool, noise, delay: int, n: int, observe_force: bool = False,
+                 preview_samples: tuple = ()):
         self.mode, self.residual, self.noise, self.delay = mode, residual, noise, delay
         self.observe_phase, self.observe_params, self.observe_force = observe_phase, observe_params, observe_force
         names = ["error", "velocity", "acceleration", "pressure", "vibration"]
@@ -62,16 +63,20 @@ class Observer:
             names += ["log_c1", "log_Ct"]
         if observe_force:
             names += ["load_force"]
+        self.preview_samples = tuple(preview_samples)
+        names += [f"preview_force_{k}" for k in self.preview_samples]
+        names += [f"preview_setpoint_{k}" for k in self.preview_samples]
         self.names = names
         self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
 
     def build(self, idx: np.ndarray, noise_rngs, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
-              params, force=None) -> np.ndarray:
+              params, force=None, preview=None) -> np.ndarray:
         """Observation rows for environments `idx` (sensor noise applied to e, v, a).
 
         control: the gain-action channels (gain mode) or the last action (valve mode); phase: the
         pump's phase angle (rad); params: (c1, Ct) pairs of the current plants; force: the load
-        cells' force deviation (N).
+        cells' force deviation (N); preview: (force change (N), set-point change (m)) to each look-ahead,
+        two arrays of shape (len(idx), len(preview_samples)).
         """
         if self.noise is not None:
             noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
@@ -89,6 +94,10 @@ class Observer:
                 cols.append(np.clip(2 * (vals - math.log(lo)) / (math.log(hi) - math.log(lo)) - 1, -1, 1))
         if self.observe_force:
             cols.append(slog(np.asarray(force, float), *OBS_SCALES["load_force"][2:]))
+        if self.preview_samples:
+            df, dxd = preview
+            cols += list(slog(np.asarray(df, float), *OBS_SCALES["load_force"][2:]).T)
+            cols += list(slog(np.asarray(dxd, float), *OBS_SCALES["error"][2:]).T)
         return np.stack(cols, axis=1).astype(np.float32)
 
     def start(self, i: int, obs: np.ndarray) -> np.ndarray:

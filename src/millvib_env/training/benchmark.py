@@ -203,7 +203,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
     names = list(dict.fromkeys(strings("controllers", controllers, "controller names"))) if controllers is not None \
-        else baseline_names() + list_agents(t.name, env_version)
+        else baseline_names(env_version) + list_agents(t.name, env_version)
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
@@ -250,8 +250,115 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
                                                    "cost")}
             result["scenarios"][name] = sc_recs
     _compare(result)
+    result["room"] = room(result)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
+
+
+#: the bounds the room is measured with: controllers that know the plant (not deployable), each with what it
+#: stands for; the first group measures the room without preview, mpc-preview with it
+ROOM_BOUNDS = {"pid-pf-oracle": "the per-plant re-tuned classical controller (PID + pressure feedback)",
+               "lqr-oracle": "a per-plant LQR with integral action",
+               "mpc-oracle": "model-predictive control with the plant's state, within +-u_max",
+               "mpc-preview": "mpc-oracle with the disturbances' course over its horizon (a preview)"}
+#: the deployable classical controllers, among which the best is named
+DEPLOYABLE_CLASSICAL = ("pid-paper", "pid-nominal", "pid-robust", "pid-adaptive", "pid-pf-robust", "pid-pf-ff")
+#: a room below this share of the reference's cost is reported as such, without shares (a ratio to a room of
+#: a few tenths of a percent is noise over noise)
+ROOM_THRESHOLD = 0.03
+
+
+def room(result: dict) -> dict | None:
+    """The room to learn on the benchmark's plants (`result["room"]`): for each bound of `ROOM_BOUNDS` that ran,
+    room = (reference - bound) / reference on the mean and on the CVaR-20 with its paired 95 % interval; the
+    room without preview is the largest of the bounds that know only the present (a lower bound on what a
+    controller of any structure could gain: a better oracle would show more), the room with preview
+    mpc-preview's. Where a room is at least `ROOM_THRESHOLD`, every controller's share of it: its mean improvement
+    over the reference divided by the bound's (`stats.normalized_score` against the reference and the bound, with
+    its interval), and the same ratio on the CVaR-20 (where that room is positive). The best deployable
+    classical controller is named."""
+    recs_of, ctrls = result["records"], result["controllers"]
+    ref = result.get("reference")
+    if ref not in recs_of:
+        return None
+    bounds = {}
+    for name in ROOM_BOUNDS:
+        pr = ctrls.get(name, {}).get("paired", {}).get(ref)
+        if pr is None:
+            continue
+        bounds[name] = {"what": ROOM_BOUNDS[name], "room_mean": -pr["cost_diff_rel"],
+                        "room_mean_ci": [-pr["ci"][1], -pr["ci"][0]], "room_cvar20": -pr["cvar20_diff_rel"],
+                        "room_cvar20_ci": [-pr["cvar20_ci"][1], -pr["cvar20_ci"][0]]}
+    if not bounds:
+        return None
+    present = [n for n in bounds if n != "mpc-preview"]
+    rooms = {}
+    if present:
+        rooms["without_preview"] = max(present, key=lambda n: bounds[n]["room_mean"])
+    if "mpc-preview" in bounds:
+        rooms["with_preview"] = "mpc-preview"
+    ref_cost = [r["cost"] for r in recs_of[ref]]
+    shares: dict = {}
+    for name, recs in recs_of.items():
+        if name == ref:
+            continue
+        costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
+        pr = ctrls[name]["paired"][ref]
+        shares[name] = {}
+        for which, bound in rooms.items():
+            b = bounds[bound]
+            if b["room_mean"] < ROOM_THRESHOLD:
+                continue
+            entry: dict = {"bound": bound,
+                           "mean": normalized_score(costs, ref_cost, [r["cost"] for r in recs_of[bound]])}
+            if b["room_cvar20"] > 0:
+                entry["cvar20"] = -pr["cvar20_diff_rel"] / b["room_cvar20"]
+            shares[name][which] = entry
+    deployable = [n for n in DEPLOYABLE_CLASSICAL if n in ctrls]
+    best = min(deployable, key=lambda n: ctrls[n]["cost_mean"]) if deployable else None
+    return {"reference": ref, "bounds": bounds, "rooms": rooms, "shares": shares, "best_deployable_classical": best}
+
+
+def format_room(result: dict) -> str:
+    """The room's table (`room`), in markdown; empty where no bound ran."""
+    r = result.get("room")
+    if not r:
+        return ""
+    ref = r["reference"]
+    pct = lambda v: f"{100 * v:+.1f} %"  # noqa: E731
+    lines = [f"The room to learn (against {ref}; room = ({ref} - bound) / {ref}, paired 95 % intervals; a bound "
+             "that costs more than the reference gives a negative room):", "",
+             "| bound | what it knows | room, mean | room, CVaR-20 |", "|---|---|---|---|"]
+    for name, b in r["bounds"].items():
+        lines.append(f"| {name} | {b['what']} | {pct(b['room_mean'])} [{pct(b['room_mean_ci'][0])}, "
+                     f"{pct(b['room_mean_ci'][1])}] | {pct(b['room_cvar20'])} [{pct(b['room_cvar20_ci'][0])}, "
+                     f"{pct(b['room_cvar20_ci'][1])}] |")
+    for which, bound in r["rooms"].items():
+        b = r["bounds"][bound]
+        lines.append(f"\nRoom {which.replace('_', ' ')}: {pct(b['room_mean'])} of the mean "
+                     f"[{pct(b['room_mean_ci'][0])}, {pct(b['room_mean_ci'][1])}] ({bound})"
+                     + (f": below {100 * ROOM_THRESHOLD:.0f} %. None of the controllers that know the plant and only "
+                        "its present (per-plant tuning, LQR, MPC with the true state) finds much to gain here; a "
+                        "better bound could show more"
+                        if which == "without_preview" and b["room_mean"] < ROOM_THRESHOLD else ""))
+    if r.get("best_deployable_classical"):
+        lines.append(f"\nBest deployable classical controller: {r['best_deployable_classical']}.")
+    heads = [h for h, bound in r["rooms"].items() if r["bounds"][bound]["room_mean"] >= ROOM_THRESHOLD]
+    if r["shares"] and heads:
+        lines += ["", "Share of the room each controller captures (its improvement over the reference / the bound's; "
+                  "mean [interval] and CVaR-20):", "",
+                  "| controller | " + " | ".join(f"share {h.replace('_', ' ')}" for h in heads) + " |",
+                  "|---|" + "---|" * len(heads)]
+        for name, sh in r["shares"].items():
+            cells = []
+            for h in heads:
+                e = sh.get(h, {})
+                m = e.get("mean")
+                cell = (f"{m['score']:+.2f} [{m['ci'][0]:+.2f}, {m['ci'][1]:+.2f}]" if m else "-")
+                cell += f" / {e['cvar20']:+.2f}" if "cvar20" in e else " / -"
+                cells.append(cell)
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def _compare(result: dict) -> None:
@@ -323,6 +430,9 @@ def format_table(result: dict) -> str:
     if oracle and oracle.get("one_worse_than_zero"):
         lines.append("\nOn this task pid-oracle (the per-plant best fixed PID) costs more on average than pid-robust, "
                      "so the JSON's normalised score runs the other way: below 0 is better than pid-robust.")
+    room_md = format_room(result)
+    if room_md:
+        lines += ["", room_md]
     lines += ["", "Vibration detail (pooled episodes):", "",
               "| controller | severity median | p95 | first 0.1 s | rest | pump line | 10-100 Hz | zones A/B/C/D |",
               "|---|---|---|---|---|---|---|---|"]
@@ -548,6 +658,21 @@ def _plot_bars(result: dict, path: Path) -> Path:
         ax.grid(alpha=0.3, axis="y")
     fig.tight_layout()
     return save_figure(fig, path, dpi=100)
+
+
+#: `millvib headroom`'s controllers: the deployable classical ones and every bound
+HEADROOM_CONTROLLERS = DEPLOYABLE_CLASSICAL + tuple(ROOM_BOUNDS)
+
+
+def headroom_from_cli(args) -> int:
+    """`millvib headroom`: the benchmark of the deployable classical controllers and the bounds on v1, with the
+    room to learn (`room`) printed first."""
+    if args.env_version != "v1":
+        raise ValueError(f"--env-version {args.env_version} is invalid for headroom: the bounds run on the loop as "
+                         "commissioned, v1")
+    if args.controllers is None:
+        args.controllers = list(HEADROOM_CONTROLLERS)
+    return benchmark_from_cli(args)
 
 
 def benchmark_from_cli(args) -> int:

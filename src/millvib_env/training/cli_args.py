@@ -38,9 +38,10 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--n-eval-episodes", type=int, default=8, help="episodes per evaluation (default 8)")
     p.add_argument("--checkpoint-freq", type=int, default=20_000, help="checkpoint every N steps (default 20000)")
     p.add_argument("--note", help="a sentence for the model card (e.g. why n_timesteps was lowered)")
-    p.add_argument("--select", choices=["last", "best"], default="last",
-                   help="ship the final policy (default) or the best one on the fixed evaluation plants, the "
-                        "starting policy included (--n-eval-episodes plants, the same every evaluation)")
+    p.add_argument("--select", choices=["last", "best", "trained"], default="last",
+                   help="ship the final policy (default), the best one on the fixed evaluation plants, the "
+                        "starting policy included (best), or the best one once training started (trained: never "
+                        "the untrained policy); --n-eval-episodes plants, the same every evaluation")
     p.add_argument("--backend", choices=["sb3", "sbx"], default="sb3",
                    help="learner library: sb3 (Stable-Baselines3, PyTorch; default) or sbx (its JAX port, PPO and "
                         "SAC, same hyperparameter files; needs pip install -e '.[sbx]')")

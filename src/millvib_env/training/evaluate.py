@@ -110,6 +110,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     n = len(seeds)
     venv = EpisodeBatch(env_id, n, **kwargs)
     venv.core.record_signals = controller.needs_signals
+    if controller.reads_plant:
+        controller.attach(venv.core)
     obs = venv.reset(seeds, {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, range(n))
     records: list[EpisodeRecord | None] = [None] * n
@@ -163,6 +165,8 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     venv = EpisodeBatch(controller.env_id, 1, **kwargs)
     venv.core.record_signals = controller.needs_signals
+    if controller.reads_plant:
+        controller.attach(venv.core)
     obs = venv.reset([seed], {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, [0])
     core = venv.core

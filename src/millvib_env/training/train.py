@@ -229,11 +229,13 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
     time), so the evaluation curve compares policies, not draws. `select`: ship the final policy
-    ("last") or the best evaluated one ("best", the starting policy included, with the observation
-    statistics of its moment). `backend`: the learner library, "sb3" (default) or "sbx" (JAX; PPO and
-    SAC), with the same hyperparameter files; the card records it and `load_controller` loads with it."""
-    if select not in ("last", "best"):
-        raise ValueError(f"--select {select!r} is invalid: 'last' or 'best'")
+    ("last"), the best evaluated one ("best", the starting policy included, with the observation
+    statistics of its moment) or the best evaluated one after training started ("trained": never the
+    starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" (default)
+    or "sbx" (JAX; PPO and SAC), with the same hyperparameter files; the card records it and
+    `load_controller` loads with it."""
+    if select not in ("last", "best", "trained"):
+        raise ValueError(f"--select {select!r} is invalid: 'last', 'best' or 'trained'")
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
@@ -307,7 +309,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
             "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
     if selected is not None:
         card["selected"] = {**selected, "how": f"the best of every evaluation on the same {n_eval_episodes} "
-                                              "evaluation plants, the starting policy included"}
+                                              "evaluation plants, " + ("the starting policy included"
+                                                                       if select == "best" else
+                                                                       "the starting policy not among them")}
     if note:
         card["note"] = note
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
@@ -339,7 +343,7 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
     normalized = isinstance(venv, VecNormalize)
     if normalized:
         venv.save(str(run / "vecnormalize.pkl"))
-    if select == "best" and (run / "best" / "best_model.zip").is_file():
+    if select in ("best", "trained") and (run / "best" / "best_model.zip").is_file():
         shutil.copyfile(run / "best" / "best_model.zip", run / "model.zip")
         if normalized:
             shutil.copyfile(run / "best" / STATS_FILE, run / STATS_FILE)

@@ -1,0 +1,341 @@
+"""Model-predictive control on the sampled loop: `mpc-oracle` and `mpc-preview`, the bound a controller of
+any structure is measured against (not deployable: they read the plant's true state and parameters).
+
+At every loop sample t_k (2 kHz on v1) the oracle commands the valve directly (the valve environment, no
+PID under it) with the first move of
+
+    min  sum_{j=1..N} q_x ((x_j - xd_j) / 10 um)^2 + q_v (v_j / 4.5 mm/s)^2 + q_i (xi_j / 1e-7 m s)^2
+         + s_N' P s_N + r sum_{j=0..N-1} ((u_j - u0) / 10 V)^2 + r_d sum ((u_j - u_(j-1)) / 10 V)^2
+    s.t. s_(j+1) = A s_j + B (u_j - u0) + E e_j,   -u_max <= u_j <= u_max,
+
+a quadratic programme solved with OSQP (condensed: the N commands are the variables, the +-u_max box the
+constraints, warm-started from the last solution). The model (A, B, E) is the plant's own linearisation
+(`analysis.linear.linearize`, numerical derivatives of `plant_rhs`, sliding friction, B as the secant over
+u0 +- `du_v`), with the spool's dynamics, sampled with a zero-order hold at the loop's period; xi is the
+integral of the position error (integral action: the linear model's offsets are removed) and P the
+discrete Riccati solution of the same weights (the horizon's tail). The exogenous inputs e_j are the
+rolling force's deviation (force steps, eccentricity), the supply pressure's ripple and the set-point.
+
+The computation delay of the loop is respected: the command computed at t_k is applied from t_(k+1)
+(``delay_samples = 1``), so the optimisation starts from the state predicted at t_(k+1) under the command
+already held. The model is rebuilt when the plant (c1, Ct) moves by more than `REBUILD_LOG_STEP` (the
+`change` task) or the set-point moves by more than `REBUILD_XD_M` (the `startup` ramp).
+
+What each knows:
+
+* `mpc-oracle`: the plant's parameters and its full state (no sensor noise) at every sample, and the
+  disturbances' values now, held over the horizon;
+* `mpc-preview`: the same, and the disturbances' and the set-point's true course over the horizon (what an
+  entry-thickness gauge upstream of the stand and the pass schedule would give, made exact).
+
+The weights and the horizon are tuned per task on its tuning plants (configs/control/v1/<task>.yaml).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg, sparse
+
+from millvib_env._checks import instance, real
+from millvib_env.control.base import Controller
+from millvib_env.params import MillParams
+from millvib_env.threads import one_blas_thread
+
+__all__ = ["MPCSettings", "MPCModel", "MPCPolicy", "mpc_model", "REBUILD_LOG_STEP", "REBUILD_XD_M"]
+
+#: the plant moves this far in log c1 or log Ct before the model is rebuilt (2 %)
+REBUILD_LOG_STEP = 0.02
+#: the set-point moves this far before the model is re-linearised (m)
+REBUILD_XD_M = 2.0e-5
+#: the cost's scales: position error, velocity (the benchmark's cost scales), integral, command
+X_SCALE_M, V_SCALE_M_S, I_SCALE_M_S, U_SCALE_V = 1.0e-5, 4.5e-3, 1.0e-7, 10.0
+
+
+@dataclass(frozen=True)
+class MPCSettings:
+    """The MPC's horizon (loop samples), weights (on the module docstring's scaled terms) and model."""
+
+    horizon: int = 20
+    q_x: float = 1.0
+    q_v: float = 1.0
+    q_i: float = 0.1
+    r: float = 1e-3
+    r_d: float = 0.0
+    du_v: float = 1.0
+    residual_filter: float = 0.2
+    preview: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) \
+                or not 1 <= self.horizon <= 400:
+            raise ValueError(f"MPCSettings.horizon = {self.horizon!r} is invalid: an integer in [1, 400] "
+                             "(loop samples)")
+        for name in ("q_x", "q_v", "q_i", "r", "r_d"):
+            real(f"MPCSettings.{name}", getattr(self, name), lo=0.0, hi=1e12)
+        real("MPCSettings.r", self.r, lo=0.0, lo_open=True, hi=1e12)
+        real("MPCSettings.du_v", self.du_v, lo=0.0, lo_open=True, hi=100.0)
+        real("MPCSettings.residual_filter", self.residual_filter, lo=0.0, hi=1.0)
+        if not isinstance(self.preview, (bool, np.bool_)):
+            raise ValueError(f"MPCSettings.preview = {self.preview!r} is invalid: True or False")
+
+
+@dataclass
+class MPCModel:
+    """The condensed prediction for one plant and set-point (`mpc_model`)."""
+
+    keep: list            # the plant states the model carries (indices into plant.model.STATES)
+    y0: np.ndarray        # the operating point (all NY states)
+    u0: float             # the command that holds it (V)
+    xd0: float            # the set-point it was linearised at (m)
+    Ad: np.ndarray        # (ns, ns): s = (y[keep] - y0[keep], xi)
+    Bd: np.ndarray        # (ns,)
+    Ed: np.ndarray        # (ns, 3): force (N), supply ripple (Pa), set-point deviation (m)
+    H: np.ndarray         # (N, N) the QP's Hessian
+    G_s: np.ndarray       # (N, ns) gradient per start state
+    G_e: np.ndarray       # (N, 3 N) gradient per exogenous course
+    G_u: np.ndarray       # (N,) gradient per held command (the move penalty's first term)
+    G_w: np.ndarray       # (N, ns) gradient per model residual (held over the horizon)
+    Q: np.ndarray         # (ns, ns) the stage weight and
+    P: np.ndarray         # (ns, ns) the terminal one (the discrete Riccati solution)
+    solver: object = None  # OSQP, set up on the scaled problem
+    q_scale: float = 1.0
+
+
+def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    n, m = A.shape[0], B.shape[1]
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = A, B
+    E = linalg.expm(M * dt)
+    return E[:n, :n], E[:n, n:]
+
+
+def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float = 0.0) -> MPCModel:
+    """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`."""
+    from millvib_env.analysis.linear import linearize
+    from millvib_env.plant.model import IUI, STATE_NAMES
+
+    instance("params", params, MillParams, "a MillParams")
+    instance("settings", settings, MPCSettings, "an MPCSettings")
+    dt_s = real("dt_s", dt_s, lo=0.0, lo_open=True, hi=0.1)
+    ss = linearize(params, xd, friction="sliding", du=min(settings.du_v, params.u_max))
+    keep = [STATE_NAMES.index(n) for n in ss.states]
+    n = len(keep)
+    ns = n + 1  # + the integral of the position error
+    Ac = np.zeros((ns, ns))
+    Ac[:n, :n] = ss.A
+    Ac[n, 0] = -1.0  # d xi / dt = xd - x
+    Bc = np.zeros((ns, 4))
+    Bc[:n, 0] = ss.B[:, 0]
+    Bc[:n, 1:3] = ss.E
+    Bc[n, 3] = 1.0  # the set-point's deviation from xd0 feeds the integral
+    with one_blas_thread():
+        Ad, BEd = _zoh(Ac, Bc, dt_s)
+    Bd, Ed = BEd[:, 0], BEd[:, 1:]
+    # the stage cost on s: weights of (x - xd), v, xi in scaled terms; the set-point enters through e
+    iv = ss.states.index("v")
+    Q = np.zeros((ns, ns))
+    Q[0, 0] = settings.q_x / X_SCALE_M ** 2
+    Q[iv, iv] = settings.q_v / V_SCALE_M_S ** 2
+    Q[n, n] = settings.q_i / I_SCALE_M_S ** 2
+    R = settings.r / U_SCALE_V ** 2
+    with one_blas_thread():
+        try:
+            P = linalg.solve_discrete_are(Ad, Bd[:, None], Q, np.array([[R]]))
+        except (np.linalg.LinAlgError, ValueError):
+            P = Q.copy()
+    N = int(settings.horizon)
+    # stacked prediction: s_j = A^j s_0 + sum_i A^(j-1-i) (B u_i + E e_i), j = 1..N
+    Apow = [np.eye(ns)]
+    for _ in range(N):
+        Apow.append(Ad @ Apow[-1])
+    Phi = np.vstack(Apow[1:])                      # (N ns, ns)
+    Gam = np.zeros((N * ns, N))
+    Gam_e = np.zeros((N * ns, 3 * N))
+    Gam_w = np.zeros((N * ns, ns))  # a residual w added at every step: s_j += sum_i A^(j-1-i) w
+    for j in range(1, N + 1):
+        for i in range(j):
+            Gam[(j - 1) * ns:j * ns, i] = Apow[j - 1 - i] @ Bd
+            Gam_e[(j - 1) * ns:j * ns, 3 * i:3 * i + 3] = Apow[j - 1 - i] @ Ed
+            Gam_w[(j - 1) * ns:j * ns] += Apow[j - 1 - i]
+    # the tracking error x_j - xd_j = s_j[0] - (xd_j - xd0): the set-point deviation of e_j (applied over
+    # step j-1 -> j) is the one at t_j, so it enters the target through a selector
+    Qbar = sparse.block_diag([Q] * (N - 1) + [Q + P]).toarray()
+    Tsel = np.zeros((N * ns, 3 * N))  # the target: s_j[0] = xd_j - xd0 (the xd of e_(j-1))
+    for j in range(1, N + 1):
+        Tsel[(j - 1) * ns, 3 * (j - 1) + 2] = 1.0
+    D = np.eye(N) - np.eye(N, k=-1)  # command moves
+    rd = settings.r_d / U_SCALE_V ** 2
+    H = Gam.T @ Qbar @ Gam + R * np.eye(N) + rd * D.T @ D
+    H = 0.5 * (H + H.T)
+    G_s = Gam.T @ Qbar @ Phi
+    G_e = Gam.T @ Qbar @ (Gam_e - Tsel)
+    G_u = np.zeros(N)
+    G_u[0] = -rd  # the first move is from the command already held
+    return MPCModel(keep=keep, y0=ss.op.y.copy(), u0=float(ss.op.y[IUI]), xd0=float(xd), Ad=Ad, Bd=Bd, Ed=Ed,
+                    H=H, G_s=G_s, G_e=G_e, G_u=G_u, G_w=Gam.T @ Qbar @ Gam_w, Q=Q, P=P)
+
+
+class MPCPolicy(Controller):
+    """`mpc-oracle` / `mpc-preview` (module docstring): a valve-mode controller that reads the plant it
+    runs on (`reads_plant`: the evaluation loop hands it the environment's core with `attach`)."""
+
+    reads_plant = True
+
+    def __init__(self, name: str, settings: MPCSettings, version: str = "v1"):
+        from millvib_env.envs.batch import env_id_for
+
+        if version == "v0":
+            raise ValueError(f"{name} runs on the loop as commissioned (environment version v1): the v0 analog "
+                             "loop has no sampled controller to stand in for")
+        self.name, self.settings = name, instance("settings", settings, MPCSettings, "an MPCSettings")
+        self.env_id = env_id_for("valve", version)
+        self.env_kwargs = {}
+        self.core = None
+        self._models: list = []
+        self._keys: list = []
+        self._xi = np.zeros(0)
+        self._last = np.zeros(0)
+        #: QP solves that did not report 'solved' (their clipped first move is used)
+        self.unsolved = 0
+        self.solves = 0
+
+    def attach(self, core, as_teacher: bool = False) -> None:
+        """The environments' core (`envs.core.MillVibCore`) whose plants this oracle reads. As a controller it
+        drives the valve alone; `as_teacher` attaches it to any valve environment of the sampled loop (a
+        residual one too) to give `teacher_command` for whatever drives it (`training.distill`)."""
+        if core.loop is None or core.mode != "valve" or (core.residual and not as_teacher):
+            raise ValueError(f"{self.name} commands the valve of the sampled loop: run it in {self.env_id}")
+        self.core = core
+        n = core.n
+        self._models = [None] * n
+        self._keys = [None] * n
+        self._xi = np.zeros(n)
+        self._last = np.zeros(n)
+        self._w = [None] * n      # the model's one-step residual, filtered (offset-free prediction)
+        self._pred = [None] * n   # the state the model predicted for this sample
+
+    def on_reset(self, infos, indices) -> None:
+        for i in indices:
+            self._xi[i] = 0.0
+            self._w[i] = self._pred[i] = None
+            self._keys[i] = None if self._keys[i] is None or self._keys[i][0] != id(self.core.params[i]) \
+                else self._keys[i]
+
+    def _model(self, i: int, xd: float) -> MPCModel:
+        core = self.core
+        base = core.params[i]
+        now = core.current_params(i)
+        key = (id(base), math.log(now["c1"]), math.log(now["Ct"]), xd)
+        old = self._keys[i]
+        if old is not None and old[0] == key[0] and abs(old[1] - key[1]) <= REBUILD_LOG_STEP \
+                and abs(old[2] - key[2]) <= REBUILD_LOG_STEP and abs(old[3] - xd) <= REBUILD_XD_M:
+            return self._models[i]
+        import osqp
+
+        m = mpc_model(base.replace(c1=now["c1"], Ct=now["Ct"]), self.settings, core.loop.dt_s, xd)
+        N = m.H.shape[0]
+        # solved in commands of U_SCALE_V and a cost of O(1): the weights' 1e10 spread stays out of OSQP
+        m.q_scale = U_SCALE_V / float(np.max(np.diag(m.H)) * U_SCALE_V ** 2)
+        solver = osqp.OSQP()
+        umax = base.u_max
+        solver.setup(P=sparse.csc_matrix(np.triu(m.H * U_SCALE_V * m.q_scale)), q=np.zeros(N),
+                     A=sparse.identity(N, format="csc"), l=np.full(N, (-umax - m.u0) / U_SCALE_V),
+                     u=np.full(N, (umax - m.u0) / U_SCALE_V), verbose=False, eps_abs=1e-6, eps_rel=1e-6,
+                     max_iter=4000, polishing=False, warm_starting=True)
+        m.solver = solver
+        self._models[i], self._keys[i] = m, key
+        return m
+
+    def _exogenous(self, i: int, m: MPCModel, N: int) -> np.ndarray:
+        """e_j for the steps from t_k (j = 0: the step already committed) to t_(k+N): (N + 1, 3)."""
+        from millvib_env.plant.model import C_EA, C_EP, C_EW, P_PA, P_PS, supply_pressure
+
+        core = self.core
+        dt = core.loop.dt_s
+        k = int(core.k[i]) * core.n_sub
+        t = core.T[i]
+        c, p = core.C[i], core.P[i]
+        last = core.XD.shape[1] - 1
+        if self.settings.preview:
+            idx = np.minimum(k + np.arange(N + 1), last)
+            tm = t + (np.arange(N + 1) + 0.5) * dt  # the sinusoids at each hold's midpoint
+        else:
+            idx = np.full(N + 1, min(k, last))
+            tm = np.full(N + 1, t)
+        e = np.empty((N + 1, 3))
+        e[:, 0] = core.DFL[i, idx] + (c[C_EA] * np.sin(c[C_EW] * tm + c[C_EP]) if c[C_EA] != 0.0 else 0.0)
+        if p[P_PA] != 0.0:
+            e[:, 1] = [supply_pressure(tt, p) - p[P_PS] for tt in tm]
+        else:
+            e[:, 1] = 0.0
+        e[:, 2] = core.XD[i, np.minimum(idx + 1, last)] - m.xd0  # the set-point at the step's end
+        return e
+
+    def teacher_command(self, i: int) -> float:
+        """The command (V) the oracle would send from environment i's state now (its internal state moves
+        on: call it once per sample)."""
+        return self._command(i)
+
+    def _command(self, i: int) -> float:
+        from millvib_env.loop.kernel import K_UAPP, K_UPEND
+        from millvib_env.plant.model import IX
+
+        core = self.core
+        k = int(core.k[i]) * core.n_sub
+        xd_now = float(core.XD[i, min(k, core.XD.shape[1] - 1)])
+        m = self._model(i, xd_now)
+        N = m.H.shape[0]
+        y = core.Y[i]
+        s = np.empty(len(m.keep) + 1)
+        s[:-1] = y[m.keep] - m.y0[m.keep]
+        s[-1] = self._xi[i]
+        e = self._exogenous(i, m, N)
+        # offset-free: what the model missed over the last sample (the valve's two gains, friction, the
+        # operating point's drift), filtered and held over the horizon
+        a = self.settings.residual_filter
+        w = self._w[i]
+        if a > 0.0 and self._pred[i] is not None and self._pred[i].shape == y[m.keep].shape:
+            miss = np.zeros_like(s)
+            miss[:-1] = y[m.keep] - self._pred[i]
+            w = miss * a if w is None or w.shape != s.shape else w + a * (miss - w)
+            self._w[i] = w
+        if w is None or w.shape != s.shape:
+            w = np.zeros_like(s)
+        delayed = core.loop.delay_samples > 0
+        if delayed:  # the command held over [t_k, t_(k+1)] was computed a sample ago
+            held = float(core.CS[i, K_UPEND])
+            s = m.Ad @ s + m.Bd * (held - m.u0) + m.Ed @ e[0] + w
+            e_h = e[1:]
+        else:
+            held = float(core.CS[i, K_UAPP])
+            e_h = e[:-1]
+        q = m.G_s @ s + m.G_e @ e_h.reshape(-1) + m.G_u * (held - m.u0) + m.G_w @ w
+        m.solver.update(q=q * m.q_scale)
+        res = m.solver.solve(raise_error=False)
+        self.solves += 1
+        if res.info.status_val not in (1, 2):  # solved, solved inaccurate
+            self.unsolved += 1
+        z = res.x
+        du = U_SCALE_V * float(z[0]) if z is not None and np.isfinite(z[0]) else 0.0
+        umax = core.params[i].u_max
+        u = min(max(m.u0 + du, -umax), umax)
+        # the integral of the position error, as the model counts it (true position, no noise)
+        self._xi[i] += core.loop.dt_s * (xd_now - y[IX])
+        # the model's prediction of the next sample's plant state, absolute (a rebuilt model keeps it)
+        nxt = s if delayed else m.Ad @ s + m.Bd * (u - m.u0) + m.Ed @ e[0] + w
+        self._pred[i] = nxt[:-1] + m.y0[m.keep]
+        return u
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        if self.core is None:
+            raise ValueError(f"{self.name} reads the plant's state: run it in env = ctrl.make_env() or through "
+                             "the benchmark's evaluation loop, which hand it the environments (attach)")
+        obs = np.asarray(observation)
+        n = 1 if obs.ndim == 1 else obs.shape[0]
+        u = np.array([self._command(i) for i in range(n)])
+        self._last[:n] = u
+        action = (u / self.core.u_range).astype(np.float32)[:, None]
+        return (action[0] if obs.ndim == 1 else action), state

@@ -1,0 +1,221 @@
+"""`millvib distill`: a deployable residual valve policy learned from the MPC oracle (teacher-student, DAgger).
+
+The room a preview opens (`millvib headroom`: `mpc-preview` against `pid-pf-robust`) is taken by an oracle
+that reads the plant's true state. A deployable controller reads only the loop's sensors and the preview.
+PPO from scratch at the loop's 2 kHz did not find it (measured: flat evaluation returns over 0.8 M steps on
+rolling, two seeds). So the student is taught by the oracle (Ross et al., DAgger, 2011; the privileged
+teacher of "learning by cheating"):
+
+1. the student runs in the residual valve environment on top of the reference (`pid-pf-robust`), reading
+   what a mill measures (position error and its filtered derivative, pressure, the load cells' force) and
+   the preview (`observation.preview_samples`); iteration 0 runs the reference alone (the zero action);
+2. at every loop sample the teacher (`control.mpc`, attached to the same environments) computes the
+   command it would send from the true state, and the label is the residual that would make the loop's
+   command the teacher's: ``(u_teacher - u_pid) / residual_range`` (u_pid: the digital PID's own command at
+   that sample), clipped to the action's [-1, 1];
+3. the pairs of every iteration are pooled (DAgger's aggregation) and the student's network (an SB3 PPO
+   MlpPolicy's actor, so the result is an ordinary SB3 agent folder) is fitted by least squares on the
+   observations normalised by the pooled statistics (written as vecnormalize.npz);
+4. the next iteration runs the new student (its own states, labelled by the teacher).
+
+Each iteration's student is scored on the task's validation plants; the shipped one is the best of those
+scores, never iteration 0's reference. Every episode is a training plant of the training seed
+(`Task.train_env_seed`); the numbers of the run are in the card.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from millvib_env._paths import write_text_atomic
+from millvib_env.tasks import get_task
+
+__all__ = ["distill", "DEFAULT_PREVIEW", "student_env_kwargs"]
+
+#: the preview's look-aheads (control samples: 0.5-20 ms at 2 kHz)
+DEFAULT_PREVIEW = (1, 2, 4, 8, 16, 24, 32, 40)
+
+
+def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0) -> dict:
+    """The student's environment: a residual of +-`range_v` on `base`, the load cells and the preview."""
+    return {"residual": True, "reward": {"w_vibration": 1.0, "w_effort": 0.0},
+            "observation": {"force": True, "preview_samples": list(preview)},
+            "actions": {"residual_gains": base, "residual_range_v": float(range_v)}}
+
+
+def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: str, seeds: list[int], stats, progress=None,
+             baseline=None):
+    """Run the student (None: the zero action) on `seeds`; return observations and teacher labels: the residual
+    that makes the loop's command the teacher's, or (with a `baseline` oracle) the teacher's command less the
+    baseline's, both computed from the same state."""
+    import torch
+
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.loop.kernel import K_UCTRL
+
+    venv = EpisodeBatch(env_id, len(seeds), **{"config": get_task(task).config, **env_kwargs})
+    core = venv.core
+    obs = venv.reset(seeds)
+    for oracle in (teacher, baseline):
+        if oracle is not None:
+            oracle.attach(core, as_teacher=True)
+            oracle.on_reset(venv.reset_infos, range(len(seeds)))
+    xs, ys = [], []
+    u_range = core.u_range
+    for _ in range(core.max_steps):
+        u_t = np.array([teacher.teacher_command(i) for i in range(core.n)])
+        u_b = None if baseline is None else np.array([baseline.teacher_command(i) for i in range(core.n)])
+        if student is None:
+            action = np.zeros((core.n, 1), dtype=np.float32)
+        else:
+            with torch.no_grad():
+                x = torch.as_tensor(stats.normalize(obs))
+                action = student(x).clamp(-1.0, 1.0).numpy()
+        xs.append(obs.copy())
+        obs, dones, infos = venv.step(action)
+        u_pid = core.CS[:, K_UCTRL]  # the digital PID's own command at the sample just taken
+        ys.append(np.clip((u_t - (u_pid if u_b is None else u_b)) / u_range, -1.0, 1.0)[:, None])
+        teacher.on_step(infos)
+        if progress is not None:
+            progress.update(core.n)
+        if dones.all():
+            break
+    return np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
+
+
+def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> float:
+    """Least squares of the PPO actor's mean action on (X, Y); returns the final mean squared error."""
+    import torch
+
+    policy = model.policy
+    params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
+    opt = torch.optim.Adam(params, lr=1e-3)
+    gen = torch.Generator().manual_seed(seed)
+    Xt = torch.as_tensor(stats.normalize(X))
+    Yt = torch.as_tensor(Y)
+    n = Xt.shape[0]
+    loss_value = float("nan")
+    for _ in range(epochs):
+        order = torch.randperm(n, generator=gen)
+        for start in range(0, n, 1024):
+            idx = order[start:start + 1024]
+            pred = policy.action_net(policy.mlp_extractor.policy_net(Xt[idx]))
+            loss = torch.mean((pred - Yt[idx]) ** 2)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        with torch.no_grad():
+            loss_value = float(torch.mean((policy.action_net(policy.mlp_extractor.policy_net(Xt)) - Yt) ** 2))
+    return loss_value
+
+
+def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
+            iterations: int = 4,
+            episodes: int = 20, epochs: int = 15, preview=DEFAULT_PREVIEW, save_dir: str | Path,
+            progress: bool = True, command: str | None = None) -> dict:
+    """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
+    `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
+    import torch
+    from stable_baselines3 import PPO
+
+    import gymnasium as gym
+
+    from millvib_env._checks import integer
+    from millvib_env.control.factory import load_controller
+    from millvib_env.control.normalization import ObsStats
+    from millvib_env.training.train import validation_result
+
+    t = get_task(task)
+    seed = integer("seed", seed, lo=0, hi=49)
+    iterations = integer("iterations", iterations, lo=1, hi=20)
+    episodes = integer("episodes", episodes, lo=1, hi=100)
+    if iterations * episodes > 100:
+        raise ValueError(f"iterations x episodes = {iterations * episodes} is invalid: a training seed has 100 "
+                         "training plants")
+    epochs = integer("epochs", epochs, lo=1, hi=1000)
+    torch.manual_seed(seed)
+    env_id = "MillVib-Valve-v1"
+    kwargs = student_env_kwargs(preview)
+    teacher_ctrl = load_controller(teacher, t.name, version="v1")
+    baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
+    env = gym.make(env_id, config=t.config, **kwargs)
+    model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
+                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=[64, 64], vf=[64, 64])))
+    first = t.train_env_seed(seed)
+    save_dir = Path(save_dir)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=iterations * episodes * env.unwrapped.core.max_steps, unit="step",
+                   desc=f"distill {teacher} on {t.name}")
+    X_all, Y_all = [], []
+    student, stats = None, None
+    history = []
+    best = None
+    start = time.time()
+    import tempfile
+
+    work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
+    for it in range(iterations):
+        seeds = list(range(first + it * episodes, first + (it + 1) * episodes))
+        X, Y = _rollout(student, teacher_ctrl, env_id, kwargs, t.name, seeds, stats, bar, baseline_ctrl)
+        X_all.append(X)
+        Y_all.append(Y)
+        Xc, Yc = np.concatenate(X_all), np.concatenate(Y_all)
+        stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)), 10.0, 1e-8)
+        mse = _fit(model, Xc, Yc, stats, epochs, seed + it)
+        policy = model.policy
+        student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))  # noqa: E731
+        folder = work / f"it{it + 1}"
+        _write_agent(folder, model, stats, {})
+        card = _card(t.name, env_id, kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command, baseline)
+        val = validation_result(folder, card)
+        history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse, **val})
+        if best is None or val["cost_mean"] < best[1]["cost_mean"]:
+            best = (folder, val, it + 1)
+    if bar is not None:
+        bar.close()
+    folder, val, it = best
+    card = _card(t.name, env_id, kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
+                 history[it - 1]["fit_mse"], command, baseline)
+    card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
+    card.update({"validation": val, "iterations": history, "wall_time_s": round(time.time() - start, 1),
+                 "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
+                                                      "(iteration 0, the reference alone, never among them)"}})
+    write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
+    from millvib_env._paths import atomic_folder
+
+    import shutil
+
+    with atomic_folder(save_dir) as tmp:
+        for name in ("model.zip", "vecnormalize.npz", "card.json"):
+            shutil.copyfile(folder / name, tmp / name)
+    shutil.rmtree(work, ignore_errors=True)
+    return card
+
+
+def _write_agent(folder: Path, model, stats, card: dict) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    model.save(folder / "model.zip")
+    with open(folder / "vecnormalize.npz", "wb") as fh:
+        np.savez(fh, mean=stats.mean, var=stats.var, count=np.float64(stats.count), clip_obs=np.float64(stats.clip_obs),
+                 epsilon=np.float64(stats.epsilon))
+
+
+def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
+          baseline=None) -> dict:
+    suffix = "" if task == "startup" else f"-{task}"
+    return {"name": f"dagger-residual-preview{suffix}", "algo": "ppo", "env_id": env_id, "task": task,
+            "backend": "sb3", "env_kwargs": kwargs, "seed": seed, "normalize": "{'norm_obs': True}",
+            "policy": "MlpPolicy (the actor of an SB3 PPO policy, pi [64, 64])",
+            "trained_by": f"DAgger from {teacher}" + (f" less {baseline} (the label: what the teacher's knowledge "
+                                                     "adds to the baseline oracle's command from the same state)"
+                                                     if baseline else "")
+                          + f": {iteration} iteration(s) of {episodes} training episodes, "
+                          f"{samples} labelled loop samples pooled, {epochs} epochs of least squares (Adam, "
+                          f"batch 1024) per iteration; final fit MSE {mse:.3g} (actions in [-1, 1])",
+            "command": command or f"millvib distill --task {task} --seed {seed}"}

@@ -1,0 +1,184 @@
+"""The MPC bounds (`control.mpc`) and the room they measure (`training.benchmark.room`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from millvib_env.analysis.linear import linearize
+from millvib_env.control.factory import load_controller
+from millvib_env.control.mpc import MPCPolicy, MPCSettings, mpc_model
+from millvib_env.envs.config import task_config
+from millvib_env.plant.model import C_DFL, NY, STATE_NAMES, drive_vector, pack, plant_rhs
+from millvib_env.params import PIDGains
+from millvib_env.training.benchmark import room
+from millvib_env.training.evaluate import run_episodes
+
+SHORT = {"episode_s": 0.1}
+
+
+def _rhs(params, y, c):
+    dy, aux = np.zeros(NY), np.zeros(16)
+    plant_rhs(0.0, y, pack(params.replace(pulse_amp=0.0)), c, dy, aux)
+    return dy
+
+
+def test_the_disturbance_columns_are_the_plants_own_response():
+    """E's force column is -1/mt in the acceleration and nothing else: the force balance (8) of plant_rhs."""
+    params = task_config("rolling", "v1").base_params
+    ss = linearize(params, 0.0, friction="sliding")
+    assert ss.E.shape == (len(ss.states), 2)
+    iv = ss.states.index("v")
+    assert ss.E[iv, 0] == pytest.approx(-1.0 / params.mt, rel=1e-6)
+    assert np.all(ss.E[[i for i in range(len(ss.states)) if i != iv], 0] == 0.0)
+    # a rise of the supply pressure feeds the chamber while the port is open towards it (u0 > 0 holds the leak)
+    ip = ss.states.index("pL")
+    c = drive_vector(PIDGains(0.0), xd=0.0, u_ext=ss.u0, pid_on=False)
+    assert ss.u0 > 0 and ss.E[ip, 1] > 0
+    c[C_DFL] = 1e3  # the column is the derivative of the one right-hand side
+    y0 = ss.op.y
+    keep = [STATE_NAMES.index(n) for n in ss.states]
+    slope = (_rhs(params, y0, c) - _rhs(params, y0, drive_vector(PIDGains(0.0), xd=0.0, u_ext=ss.u0,
+                                                                      pid_on=False)))[keep] / 1e3
+    np.testing.assert_allclose(slope, ss.E[:, 0], rtol=1e-6, atol=1e-12)
+
+
+def test_the_condensed_qp_is_the_model_stepped():
+    """The QP's gradient is the stepped model's: for random start states, commands, disturbances and set-points,
+    the derivative of the cost of stepping (Ad, Bd, Ed) sample by sample (stage weights, the command and move
+    penalties, the terminal weight) is 2 (H U + G_s s0 + G_e e + G_u u_held)."""
+    from millvib_env.control.mpc import U_SCALE_V
+
+    params = task_config("rolling", "v1").base_params
+    st = MPCSettings(horizon=6, q_x=2.0, q_v=0.5, q_i=0.1, r=0.01, r_d=0.2, residual_filter=0.0)
+    m = mpc_model(params, st, 5e-4, 0.0)
+    N, ns = 6, len(m.keep) + 1
+    rng = np.random.default_rng(0)
+    scale = np.array([1e-5, 1e-3, 1e5, 1e-5, 1e-2, 1e-7])[-ns:] if ns == 6 else np.ones(ns) * 1e-6
+    rd = st.r_d / U_SCALE_V ** 2
+    r = st.r / U_SCALE_V ** 2
+
+    def cost(s0, U, e, held):
+        s, J = s0.copy(), 0.0
+        for j in range(N):
+            s = m.Ad @ s + m.Bd * U[j] + m.Ed @ e[j]
+            d = s.copy()
+            d[0] -= e[j, 2]  # the tracking error: x - xd at the step's end
+            J += d @ (m.P if j == N - 1 else 0.0 * m.Q) @ d + d @ m.Q @ d
+            J += r * U[j] ** 2 + rd * (U[j] - (held if j == 0 else U[j - 1])) ** 2
+        return J
+
+    for _ in range(3):
+        s0 = rng.normal(size=ns) * scale
+        U = rng.normal(size=N) * 3.0
+        e = rng.normal(size=(N, 3)) * np.array([1e5, 1e5, 1e-5])
+        held = 0.7
+        g = 2.0 * (m.H @ U + m.G_s @ s0 + m.G_e @ e.reshape(-1) + m.G_u * held)
+        h = 1e-2
+        num = np.array([(cost(s0, U + h * np.eye(N)[j], e, held) - cost(s0, U - h * np.eye(N)[j], e, held)) / (2 * h)
+                        for j in range(N)])
+        np.testing.assert_allclose(g, num, rtol=1e-6, atol=1e-9 * np.max(np.abs(num)))
+
+
+def test_mpc_respects_the_amplifier_and_the_loop():
+    """Both bounds run on the valve of the sampled loop, never command beyond +-u_max, and every QP solves."""
+    for name in ("mpc-oracle", "mpc-preview"):
+        ctrl = load_controller(name, "rolling", version="v1")
+        assert ctrl.env_id == "MillVib-Valve-v1"
+        recs = run_episodes(ctrl, [120001, 120002], task="rolling", env_kwargs=SHORT)
+        u_max = task_config("rolling", "v1").base_params.u_max
+        assert all(r["command_max_abs_v"] <= u_max for r in recs)
+        assert not any(r["diverged"] for r in recs)
+        assert ctrl.solves > 0 and ctrl.unsolved == 0
+
+
+def test_mpc_refuses_what_it_cannot_run():
+    with pytest.raises(ValueError, match="v1"):
+        load_controller("mpc-oracle", "rolling", version="v0")
+    ctrl = load_controller("mpc-oracle", "rolling", version="v1")
+    with pytest.raises(ValueError, match="attach"):
+        ctrl.predict(np.zeros(8, dtype=np.float32))
+    with pytest.raises(ValueError, match="horizon"):
+        MPCSettings(horizon=0)
+    with pytest.raises(ValueError, match="residual_filter"):
+        MPCSettings(residual_filter=2.0)
+    gain_env_ctrl = MPCPolicy("mpc-oracle", MPCSettings())
+    import gymnasium as gym
+    env = gym.make("MillVib-GainSchedule-v1", config="rolling")
+    with pytest.raises(ValueError, match="valve"):
+        gain_env_ctrl.attach(env.unwrapped.core)
+
+
+def test_mpc_runs_in_a_plain_gymnasium_loop_as_in_the_benchmark():
+    ctrl = load_controller("mpc-preview", "rolling", version="v1")
+    env = ctrl.make_env(**SHORT)
+    obs, info = env.reset(seed=120001)
+    done, ret = False, 0.0
+    while not done:
+        action, _ = ctrl.predict(obs)
+        obs, reward, term, trunc, info = env.step(action)
+        ret += reward
+        done = term or trunc
+    rec = run_episodes(load_controller("mpc-preview", "rolling", version="v1"), [120001], task="rolling",
+                       env_kwargs=SHORT)[0]
+    assert rec["episode_return"] == pytest.approx(ret, rel=1e-9)
+
+
+def _fake(costs: dict) -> dict:
+    from millvib_env.training.benchmark import _compare, summarize
+
+    recs = {n: [{"seed": i, "cost": float(c), "severity_mm_s": 1.0, "tracking_rms_um": 1.0, "iso_zone": "A",
+                 "diverged": False, "command_max_abs_v": 1.0, "command_at_limit_share": 0.0, "spool_stroke_m": 0.0,
+                 "peak_flow_ratio": 0.0, "pl_min_pa": 0.0, "pl_max_pa": 1.0} for i, c in enumerate(v)]
+            for n, v in costs.items()}
+    result = {"reference": "pid-pf-robust", "records": recs, "controllers": {n: summarize(r) for n, r in recs.items()}}
+    _compare(result)
+    return result
+
+
+def test_the_room_is_the_bounds_paired_gain_and_each_share_is_measured_against_it():
+    rng = np.random.default_rng(1)
+    base = rng.uniform(1.0, 2.0, 60)
+    result = _fake({"pid-pf-robust": base, "pid-pf-ff": base * 0.95, "pid-pf-oracle": base * 0.99,
+                    "mpc-oracle": base * 1.05, "mpc-preview": base * 0.6})
+    r = room(result)
+    assert r["rooms"] == {"without_preview": "pid-pf-oracle", "with_preview": "mpc-preview"}
+    assert r["bounds"]["mpc-preview"]["room_mean"] == pytest.approx(0.4)
+    assert r["bounds"]["mpc-oracle"]["room_mean"] == pytest.approx(-0.05)
+    lo, hi = r["bounds"]["mpc-preview"]["room_mean_ci"]
+    assert lo <= 0.4 <= hi
+    assert r["shares"]["mpc-preview"]["with_preview"]["mean"]["score"] == pytest.approx(1.0)
+    assert r["shares"]["pid-pf-ff"]["with_preview"]["mean"]["score"] == pytest.approx(0.125)
+    assert "without_preview" not in r["shares"]["pid-pf-ff"]  # a room of 1 %: no shares
+    assert r["best_deployable_classical"] == "pid-pf-ff"
+    assert room({"reference": "pid-pf-robust", "records": {}, "controllers": {}}) is None
+
+
+def test_the_preview_observation_is_the_episodes_own_course():
+    """preview_samples adds, per look-ahead k, the force's and the set-point's change from the hold that starts
+    now to the one k samples ahead, read from the episode's drawn course; bad look-aheads are refused."""
+    import gymnasium as gym
+
+    from millvib_env.envs.observation import OBS_SCALES, slog
+
+    ks = [1, 4, 40]
+    env = gym.make("MillVib-Valve-v1", config="rolling", observation={"preview_samples": ks})
+    core = env.unwrapped.core
+    names = core.obs_names
+    assert names[-6:] == [f"preview_force_{k}" for k in ks] + [f"preview_setpoint_{k}" for k in ks]
+    env.reset(seed=120003)
+    for _ in range(250):
+        obs, *_ = env.step(np.zeros(1))
+    k = int(core.k[0])
+    t = core.T[0]
+    ecc = lambda tt: core._eccentricity(0, tt)  # noqa: E731
+    for la in ks:
+        df = core.DFL[0, k + la] + ecc(t + la * 5e-4) - core.DFL[0, k] - ecc(t)
+        dxd = core.XD[0, k + la] - core.XD[0, k]
+        assert obs[names.index(f"preview_force_{la}")] == pytest.approx(
+            float(slog(np.array(df), *OBS_SCALES["load_force"][2:])), abs=1e-6)
+        assert obs[names.index(f"preview_setpoint_{la}")] == pytest.approx(
+            float(slog(np.array(dxd), *OBS_SCALES["error"][2:])), abs=1e-6)
+    for bad in ([4, 2], [0], [1, 401], "3"):
+        with pytest.raises(ValueError, match="preview_samples"):
+            gym.make("MillVib-Valve-v1", config="rolling", observation={"preview_samples": bad})
