@@ -182,3 +182,38 @@ def test_the_preview_observation_is_the_episodes_own_course():
     for bad in ([4, 2], [0], [1, 401], "3"):
         with pytest.raises(ValueError, match="preview_samples"):
             gym.make("MillVib-Valve-v1", config="rolling", observation={"preview_samples": bad})
+
+
+@pytest.mark.parametrize("argv, what", [
+    (["headroom", "--env-version", "v0", "--quiet"], "v1"),
+    (["distill", "--iterations", "0", "--save-dir", "d"], "iterations"),
+    (["distill", "--iterations", "5", "--episodes", "30", "--save-dir", "d"], "100 training plants"),
+    (["distill", "--range-v", "nan", "--save-dir", "d"], "range_v"),
+    (["distill", "--net", "0", "--save-dir", "d"], "net"),
+    (["distill", "--save-dir", "/proc/version/x"], "--save-dir"),
+])
+def test_the_new_commands_refuse_bad_input_in_one_line_before_any_work(argv, what, tmp_path, monkeypatch, capsys):
+    from millvib_env.cli import main as cli_main
+
+    monkeypatch.chdir(tmp_path)
+    try:
+        status = cli_main(argv)
+    except SystemExit as exc:
+        status = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and what in err[0], err
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.slow
+def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path):
+    """One DAgger iteration on one training episode: the folder is an ordinary agent (the benchmark's loader runs
+    it), its card says how it was made and selected, and it was scored on the validation plants."""
+    from millvib_env.training.distill import distill
+
+    card = distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False)
+    assert card["selected"]["iteration"] == 1 and card["validation"]["episodes"] == 40
+    agent = load_controller(str(tmp_path / "agent"), "startup")
+    assert agent.env_id == "MillVib-Valve-v1" and agent.card["trained_by"].startswith("DAgger from mpc-preview")
+    rec = run_episodes(agent, [20000], task="startup")[0]
+    assert np.isfinite(rec["cost"]) and not rec["diverged"]

@@ -22,10 +22,12 @@ commands:
   bench       integrator and environment speed (the tables of docs/performance.md)
   params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
   scenarios   the named failure scenarios with the paper PID's measured outcome
-  tasks       the benchmark's tasks (startup, rolling, change) and their seed ranges
+  tasks       the benchmark's tasks (startup, rolling, change, varied) and their seed ranges
   tune        tune a task's classical baselines on its tuning plants (--out FILE or --write-config)
   train       train a PPO / SAC / RecurrentPPO agent from configs/agents/
   benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
+  headroom    the room to learn on a task: the classical controllers against the MPC bounds (v1)
+  distill     teach a residual valve policy with a preview by the MPC oracle (v1)
   sweep       controllers over many plants with wide parameter ranges (local processes or Ray)
 
 examples:
@@ -33,6 +35,7 @@ examples:
   millvib reproduce --out results/paper
   millvib benchmark
   millvib benchmark --task rolling
+  millvib headroom --task rolling
 """
 
 
@@ -232,6 +235,7 @@ def _cmd_distill(args) -> int:
     check_result_folder(args.save_dir, "--save-dir", "distill", own_files=AGENT_FILES)
     card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
+                   net=tuple(args.net), range_v=args.range_v,
                    command="millvib " + " ".join(sys.argv[1:]))
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
@@ -337,7 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
         "VecNormalize statistics.")), _cmd_train)
     add_benchmark_args(sub.add_parser("benchmark", help="controllers on held-out plants", description=(
         "Evaluate controllers (the baselines: pid-paper, pid-nominal, pid-robust, pid-oracle, pid-adaptive, "
-        "lqr-oracle; and agents) on the same held-out plants of a task (--task startup, rolling or change) and, "
+        "lqr-oracle, pid-pf-robust, pid-pf-ff, pid-pf-oracle and, on v1, the MPC bounds mpc-oracle and mpc-preview; "
+        "and agents) on the same held-out plants of a task (--task startup, rolling, change or varied) and, "
         "for startup, on every named scenario; report cost (mean and CVaR-20), severity (mean, p95, first "
         "0.1 s, rest, pump line, 10-100 Hz), ISO zones, tracking RMS and divergence. With no arguments: every "
         "baseline and every shipped agent of the startup task.")), _cmd_benchmark)
@@ -354,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("tune", help="tune a task's classical baselines", description=tune_doc,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="startup", help="task: startup, rolling or change (default startup)")
+    p.add_argument("--task", default="startup", help="task: startup, rolling, change or varied (default startup)")
     p.add_argument("--only", nargs="+", choices=ENTRIES, metavar="ENTRY",
                    help=f"tune only these entries (default: all): {', '.join(ENTRIES)}")
     p.add_argument("--from", dest="from_task", metavar="TASK",
@@ -389,6 +394,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
     p.add_argument("--episodes", type=int, default=20, help="training episodes per iteration (default 20)")
     p.add_argument("--epochs", type=int, default=15, help="least-squares epochs per iteration (default 15)")
+    p.add_argument("--net", type=int, nargs="+", default=[64, 64], metavar="UNITS",
+                   help="the student's hidden layers (default 64 64)")
+    p.add_argument("--range-v", type=float, default=10.0,
+                   help="the residual's range in volts: action 1 adds this to the PID's command (default 10)")
     p.add_argument("--save-dir", required=True, metavar="DIR",
                    help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -12,7 +12,8 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="environment id, the key in the YAML (default MillVib-GainSchedule-v1: the loop as "
                         "commissioned; -v0 ids train on the paper's analog loop)")
     p.add_argument("--task", default="startup",
-                   help="task whose episodes and training seeds to use: startup, rolling or change (default startup)")
+                   help="task whose episodes and training seeds to use: startup, rolling, change or varied "
+                        "(default startup)")
     seeds = p.add_mutually_exclusive_group()
     seeds.add_argument("--seed", type=int, default=0,
                        help="training seed, 0-49 (default 0); it picks the task's training and evaluation plants")
@@ -51,14 +52,15 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
 
 def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--task", default="startup",
-                   help="task: startup (the paper's 1 mm start), rolling (steady rolling) or change (the plant "
-                        "changes mid-episode); configs/tasks.yaml (default startup)")
+                   help="task: startup (the paper's 1 mm start), rolling (steady rolling), change (the plant "
+                        "changes mid-episode) or varied (rolling on a mill whose beta_e, k1, mt and FL vary too); "
+                        "configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
                    help="controllers to evaluate: baselines (pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
-                        "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle), shipped agent names (folders under "
-                        "agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or paths to agent "
-                        "folders, which are trusted code: SB3 unpickles parts of model.zip (default: every baseline "
-                        "and every shipped agent trained on the task)")
+                        "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle; v1: mpc-oracle mpc-preview), shipped agent "
+                        "names (folders under agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or "
+                        "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip (default: "
+                        "every baseline and every shipped agent trained on the task)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "
                         "controller, sensors in the loop, a servo valve with dynamics and a +-10 V amplifier; "

@@ -116,6 +116,7 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> 
 def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
             iterations: int = 4,
             episodes: int = 20, epochs: int = 15, preview=DEFAULT_PREVIEW, save_dir: str | Path,
+            net: tuple = (64, 64), range_v: float = 10.0,
             progress: bool = True, command: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
@@ -139,12 +140,16 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     epochs = integer("epochs", epochs, lo=1, hi=1000)
     torch.manual_seed(seed)
     env_id = "MillVib-Valve-v1"
-    kwargs = student_env_kwargs(preview)
+    from millvib_env._checks import real
+
+    range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
+    net = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
+    kwargs = student_env_kwargs(preview, range_v=range_v)
     teacher_ctrl = load_controller(teacher, t.name, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
-                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=[64, 64], vf=[64, 64])))
+                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(net), vf=[64, 64])))
     first = t.train_env_seed(seed)
     save_dir = Path(save_dir)
     bar = None
@@ -184,6 +189,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
                  history[it - 1]["fit_mse"], command, baseline)
     card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
     card.update({"validation": val, "iterations": history, "wall_time_s": round(time.time() - start, 1),
+                 "n_timesteps": int(history[it - 1]["samples"]),  # the loop samples its student was fitted on
                  "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
                                                       "(iteration 0, the reference alone, never among them)"}})
     write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
@@ -211,7 +217,7 @@ def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samp
     suffix = "" if task == "startup" else f"-{task}"
     return {"name": f"dagger-residual-preview{suffix}", "algo": "ppo", "env_id": env_id, "task": task,
             "backend": "sb3", "env_kwargs": kwargs, "seed": seed, "normalize": "{'norm_obs': True}",
-            "policy": "MlpPolicy (the actor of an SB3 PPO policy, pi [64, 64])",
+            "policy": "MlpPolicy (the actor of an SB3 PPO policy)",
             "trained_by": f"DAgger from {teacher}" + (f" less {baseline} (the label: what the teacher's knowledge "
                                                      "adds to the baseline oracle's command from the same state)"
                                                      if baseline else "")
