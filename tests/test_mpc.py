@@ -217,3 +217,24 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path):
     assert agent.env_id == "MillVib-Valve-v1" and agent.card["trained_by"].startswith("DAgger from mpc-preview")
     rec = run_episodes(agent, [20000], task="startup")[0]
     assert np.isfinite(rec["cost"]) and not rec["diverged"]
+
+
+def test_a_new_episode_starts_the_oracle_afresh():
+    """In a plain loop, the second episode of one controller equals a fresh controller's on the same seed: no
+    model, integral or residual of the first plant is carried over."""
+    def episode(ctrl, env, seed):
+        obs, _ = env.reset(seed=seed)
+        done, ret = False, 0.0
+        while not done:
+            action, _ = ctrl.predict(obs)
+            obs, reward, term, trunc, _ = env.step(action)
+            ret += reward
+            done = term or trunc
+        return ret
+
+    ctrl = load_controller("mpc-oracle", "varied", version="v1")
+    env = ctrl.make_env(**SHORT)
+    episode(ctrl, env, 320001)
+    second = episode(ctrl, env, 320002)
+    fresh = load_controller("mpc-oracle", "varied", version="v1")
+    assert episode(fresh, fresh.make_env(**SHORT), 320002) == second

@@ -197,7 +197,6 @@ class MPCPolicy(Controller):
         self._models: list = []
         self._keys: list = []
         self._xi = np.zeros(0)
-        self._last = np.zeros(0)
         #: QP solves that did not report 'solved' (their clipped first move is used)
         self.unsolved = 0
         self.solves = 0
@@ -213,7 +212,6 @@ class MPCPolicy(Controller):
         self._models = [None] * n
         self._keys = [None] * n
         self._xi = np.zeros(n)
-        self._last = np.zeros(n)
         self._w = [None] * n      # the model's one-step residual, filtered (offset-free prediction)
         self._pred = [None] * n   # the state the model predicted for this sample
 
@@ -221,17 +219,16 @@ class MPCPolicy(Controller):
         for i in indices:
             self._xi[i] = 0.0
             self._w[i] = self._pred[i] = None
-            self._keys[i] = None if self._keys[i] is None or self._keys[i][0] != id(self.core.params[i]) \
-                else self._keys[i]
+            self._keys[i] = None  # a new episode, a new plant: the model is rebuilt at its first sample
 
     def _model(self, i: int, xd: float) -> MPCModel:
         core = self.core
         base = core.params[i]
         now = core.current_params(i)
-        key = (id(base), math.log(now["c1"]), math.log(now["Ct"]), xd)
+        key = (math.log(now["c1"]), math.log(now["Ct"]), xd)
         old = self._keys[i]
-        if old is not None and old[0] == key[0] and abs(old[1] - key[1]) <= REBUILD_LOG_STEP \
-                and abs(old[2] - key[2]) <= REBUILD_LOG_STEP and abs(old[3] - xd) <= REBUILD_XD_M:
+        if old is not None and abs(old[0] - key[0]) <= REBUILD_LOG_STEP and abs(old[1] - key[1]) <= REBUILD_LOG_STEP \
+                and abs(old[2] - xd) <= REBUILD_XD_M:
             return self._models[i]
         import osqp
 
@@ -336,6 +333,5 @@ class MPCPolicy(Controller):
         obs = np.asarray(observation)
         n = 1 if obs.ndim == 1 else obs.shape[0]
         u = np.array([self._command(i) for i in range(n)])
-        self._last[:n] = u
         action = (u / self.core.u_range).astype(np.float32)[:, None]
         return (action[0] if obs.ndim == 1 else action), state
