@@ -77,3 +77,15 @@ def test_to_array_round_trip():
     p = MillParams(c1=3e5)
     assert np.array_equal(p.to_array(), np.array([p.to_dict()[k] for k in PARAM_FIELDS]))
     assert MillParams.from_dict(p.to_dict()) == p
+
+
+def test_a_rod_side_larger_than_the_bore_and_a_non_boolean_pid_switch_are_refused():
+    from millvib_env.plant.integrate import simulate
+
+    with pytest.raises(ValueError, match=r"MillParams.Ab = 1.0 .*< Ap"):
+        MillParams(Ab=1.0)
+    with pytest.raises(ValueError, match=r"MillParams.Ab .*< Ap"):
+        MillParams(Ab=MillParams().Ap)
+    for bad in ("false", 0, 1.0, None):
+        with pytest.raises(ValueError, match="pid_on"):
+            simulate(pid_on=bad, t_end=0.01)

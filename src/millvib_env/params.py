@@ -54,7 +54,8 @@ class MillParams:
     """
 
     Ap: float = _p(0.19635, "m^2", "rod-less chamber area (0.5 m bore)", "> 0")
-    Ab: float = _p(0.030159, "m^2", "rod chamber effective area", ">= 0")
+    Ab: float = _p(0.030159, "m^2", "rod chamber effective area",
+                   ">= 0 and < Ap (the rod side is an annulus of the bore)")
     mt: float = _p(1200.0, "kg", "equivalent mass of piston and load roll system", "> 0")
     c1: float = _p(2.25e6, "N s/m", "equivalent viscous damping (uncertain: temperature, wear)", ">= 0",
                    studied=(1.25e5, 2.25e6))
@@ -125,7 +126,7 @@ class MillParams:
     def _checks(self):
         h = abs(self.pulse_h2) + abs(self.pulse_h3)
         return [
-            ("Ap", self.Ap > 0), ("Ab", self.Ab >= 0), ("mt", self.mt > 0), ("c1", self.c1 >= 0),
+            ("Ap", self.Ap > 0), ("Ab", 0 <= self.Ab < self.Ap), ("mt", self.mt > 0), ("c1", self.c1 >= 0),
             ("k1", self.k1 >= 0), ("FL", self.FL >= 0), ("Ct", self.Ct >= 0), ("pt", self.pt >= 0),
             ("ps", self.ps > self.pt), ("pb", self.pb >= 0), ("beta_e", self.beta_e > 0),
             ("rho", self.rho > 0), ("Cd", 0 < self.Cd <= 1), ("W", self.W > 0),

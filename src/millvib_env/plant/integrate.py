@@ -293,6 +293,8 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     """
     t = _time_grid(t_end, dt_out)
     t_end, dt_out = float(t_end), float(dt_out)
+    if not isinstance(pid_on, (bool, np.bool_)):
+        raise ValueError(f"pid_on = {pid_on!r:.60} is invalid: True or False")
     n = None
     for obj, cls, name in ((params, MillParams, "params"), (gains, PIDGains, "gains")):
         if not isinstance(obj, cls):
