@@ -109,16 +109,21 @@ def test_mpc_refuses_what_it_cannot_run():
         gain_env_ctrl.attach(env.unwrapped.core)
 
 
-def test_mpc_runs_in_a_plain_gymnasium_loop_as_in_the_benchmark():
-    ctrl = load_controller("mpc-preview", "rolling", version="v1")
-    env = ctrl.make_env(**SHORT)
-    obs, info = env.reset(seed=120001)
+def _plain_episode(ctrl, env, seed: int) -> float:
+    """One episode of `ctrl` in a plain Gymnasium loop; its return."""
+    obs, _ = env.reset(seed=seed)
     done, ret = False, 0.0
     while not done:
         action, _ = ctrl.predict(obs)
-        obs, reward, term, trunc, info = env.step(action)
+        obs, reward, term, trunc, _ = env.step(action)
         ret += reward
         done = term or trunc
+    return ret
+
+
+def test_mpc_runs_in_a_plain_gymnasium_loop_as_in_the_benchmark():
+    ctrl = load_controller("mpc-preview", "rolling", version="v1")
+    ret = _plain_episode(ctrl, ctrl.make_env(**SHORT), 120001)
     rec = run_episodes(load_controller("mpc-preview", "rolling", version="v1"), [120001], task="rolling",
                        env_kwargs=SHORT)[0]
     assert rec["episode_return"] == pytest.approx(ret, rel=1e-9)
@@ -222,19 +227,9 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path):
 def test_a_new_episode_starts_the_oracle_afresh():
     """In a plain loop, the second episode of one controller equals a fresh controller's on the same seed: no
     model, integral or residual of the first plant is carried over."""
-    def episode(ctrl, env, seed):
-        obs, _ = env.reset(seed=seed)
-        done, ret = False, 0.0
-        while not done:
-            action, _ = ctrl.predict(obs)
-            obs, reward, term, trunc, _ = env.step(action)
-            ret += reward
-            done = term or trunc
-        return ret
-
     ctrl = load_controller("mpc-oracle", "varied", version="v1")
     env = ctrl.make_env(**SHORT)
-    episode(ctrl, env, 320001)
-    second = episode(ctrl, env, 320002)
+    _plain_episode(ctrl, env, 320001)
+    second = _plain_episode(ctrl, env, 320002)
     fresh = load_controller("mpc-oracle", "varied", version="v1")
-    assert episode(fresh, fresh.make_env(**SHORT), 320002) == second
+    assert _plain_episode(fresh, fresh.make_env(**SHORT), 320002) == second
