@@ -248,13 +248,13 @@ class MPCPolicy(Controller):
 
     def _exogenous(self, i: int, m: MPCModel, N: int) -> np.ndarray:
         """e_j for the steps from t_k (j = 0: the step already committed) to t_(k+N): (N + 1, 3)."""
-        from millvib_env.plant.model import C_EA, C_EP, C_EW, P_PA, P_PS, supply_pressure
+        from millvib_env.plant.model import P_PA, P_PS, supply_pressure
 
         core = self.core
         dt = core.loop.dt_s
         k = int(core.k[i]) * core.n_sub
         t = core.T[i]
-        c, p = core.C[i], core.P[i]
+        p = core.P[i]
         last = core.XD.shape[1] - 1
         if self.settings.preview:
             idx = np.minimum(k + np.arange(N + 1), last)
@@ -263,7 +263,7 @@ class MPCPolicy(Controller):
             idx = np.full(N + 1, min(k, last))
             tm = np.full(N + 1, t)
         e = np.empty((N + 1, 3))
-        e[:, 0] = core.DFL[i, idx] + (c[C_EA] * np.sin(c[C_EW] * tm + c[C_EP]) if c[C_EA] != 0.0 else 0.0)
+        e[:, 0] = core.DFL[i, idx] + core._eccentricity(i, tm)  # the force steps and the eccentricity
         if p[P_PA] != 0.0:
             e[:, 1] = [supply_pressure(tt, p) - p[P_PS] for tt in tm]
         else:
@@ -272,11 +272,8 @@ class MPCPolicy(Controller):
         return e
 
     def teacher_command(self, i: int) -> float:
-        """The command (V) the oracle would send from environment i's state now (its internal state moves
-        on: call it once per sample)."""
-        return self._command(i)
-
-    def _command(self, i: int) -> float:
+        """The command (V) the oracle sends (as a controller) or would send (as a teacher) from environment
+        i's state now; its internal state moves on: call it once per sample."""
         from millvib_env.loop.kernel import K_UAPP, K_UPEND
         from millvib_env.plant.model import IX
 
@@ -332,6 +329,6 @@ class MPCPolicy(Controller):
                              "the benchmark's evaluation loop, which hand it the environments (attach)")
         obs = np.asarray(observation)
         n = 1 if obs.ndim == 1 else obs.shape[0]
-        u = np.array([self._command(i) for i in range(n)])
+        u = np.array([self.teacher_command(i) for i in range(n)])
         action = (u / self.core.u_range).astype(np.float32)[:, None]
         return (action[0] if obs.ndim == 1 else action), state
