@@ -103,7 +103,9 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_the_work(argv, 
 # --- config files ---------------------------------------------------------------------------------
 DAMAGE = {"broken YAML": "a: [1, 2\n", "a !!python tag": "!!python/object/apply:os.system ['touch PWNED']\n",
           "a list": "- 1\n- 2\n", "not UTF-8": b"\xff\xfe\x00\x01", "nested too deeply": "[" * 5000 + "]" * 5000,
-          "a folder": None, "missing": "MISSING"}
+          "a folder": None, "missing": "MISSING",
+          "aliases that expand": "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+              f"{n}: &{n} [{', '.join(['*' + p] * 9)}]\n" for p, n in zip("abcdefgh", "bcdefghi"))}
 #: file -> a command that reads it
 READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
            "severity.yaml": ["simulate", "--t-end", "0.2"],
@@ -116,6 +118,24 @@ READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
                                        "--no-scenarios", "--quiet"],
 
            "agents/ppo.yml": ["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"]}
+
+
+@pytest.mark.parametrize("text, what", [
+    ("a: &a [1, 2]\nb: *a\n", "alias"),
+    ("startup: {config: startup}\nrolling: 1\nstartup: {config: rolling}\n", "'startup' is given twice"),
+    ("a: {b: 1, b: 2}\n", "'b' is given twice"),
+    ("a: " + "[" * 40 + "]" * 40 + "\n", "nested deeper"),
+])
+def test_the_yaml_loader_refuses_aliases_repeated_keys_and_deep_nesting_before_building(tmp_path, text, what):
+    """One loader reads every YAML file: what a config never needs is refused while the file is composed, before
+    an alias could expand or a repeated key silently replace the first."""
+    from millvib_env._yaml import load_yaml
+
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=what) as info:
+        load_yaml(path)
+    assert "c.yaml" in str(info.value) and "\n" not in str(info.value)
 
 
 @pytest.fixture
@@ -145,6 +165,22 @@ def test_a_damaged_config_file_is_named_in_one_line(name, damage, damaged_config
     line = _one_line_refusal(READERS[name], capsys)
     assert os.path.basename(name) in line, line
     assert not (damaged_configs.parent / "PWNED").exists()  # nothing loaded from a config runs code
+
+
+@pytest.mark.parametrize("name", ["pid-robust", "mpc-oracle"])
+def test_a_from_task_cycle_between_control_configs_is_refused_in_one_line(damaged_configs, capsys, name):
+    """rolling's entry taken from change's and change's from rolling's: named, not followed until Python's
+    recursion limit."""
+    import yaml
+
+    for task, other in (("rolling", "change"), ("change", "rolling")):
+        path = damaged_configs / "control" / "v1" / f"{task}.yaml"
+        data = yaml.safe_load(path.read_text())
+        data[name] = {"from_task": other}
+        path.write_text(yaml.safe_dump(data))
+    line = _one_line_refusal(["benchmark", "--task", "rolling", "--controllers", name, "--episodes", "1",
+                              "--no-scenarios", "--quiet"], capsys)
+    assert "cycle" in line and "rolling" in line, line
 
 
 @pytest.mark.parametrize("field, value", [("c1", "nan"), ("c1", -1.0), ("A1", [1, 2]), ("bogus", 1.0),

@@ -158,3 +158,65 @@ def test_a_severity_window_outside_the_run_is_refused(t_start):
 def test_api_arguments_of_the_wrong_type_are_a_valueerror_naming_them(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def _damage_card(card: dict, how: str):
+    if how == "env_kwargs null":
+        card["env_kwargs"] = None
+    elif how == "env_kwargs a list":
+        card["env_kwargs"] = [1, 2]
+    elif how == "seed beyond a float":
+        return json.dumps(card).replace('"seed": 0', '"seed": 1e400')
+    elif how == "nested deeply":
+        return '{"algo": "ppo", "env_id": "MillVib-GainSchedule-v0", "x": ' + "[" * 100000 + "]" * 100000 + "}"
+    elif how == "not an object":
+        return "[1, 2]"
+    return json.dumps(card)
+
+
+@pytest.mark.parametrize("how", ["env_kwargs null", "env_kwargs a list", "seed beyond a float", "nested deeply",
+                                 "not an object", "a folder"])
+def test_a_damaged_card_is_refused_in_one_line_naming_it(tmp_path, how):
+    """An agent's card is data: each way of damaging it is a ValueError of one line naming card.json."""
+    import shutil
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.factory import load_controller
+
+    folder = tmp_path / "agent"
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
+    path = folder / "card.json"
+    card = json.loads(path.read_text())
+    path.unlink()
+    if how == "a folder":
+        path.mkdir()
+    else:
+        path.write_text(_damage_card(card, how))
+    with pytest.raises(ValueError) as info:
+        load_controller(str(folder))
+    assert "card.json" in str(info.value) and "\n" not in str(info.value), str(info.value)
+
+
+@pytest.mark.parametrize("key, value", [("clip_obs", 0.0), ("clip_obs", -1.0), ("epsilon", -1e-8),
+                                        ("epsilon", float("nan")), ("count", float("inf"))])
+def test_damaged_normalisation_statistics_are_refused_not_run(tmp_path, key, value):
+    """clip_obs <= 0 would feed the policy constant observations (a silently wrong result); each is refused in
+    one line naming the file."""
+    import shutil
+
+    import numpy as np
+
+    from millvib_env._paths import agents_dir
+    from millvib_env.control.factory import load_controller
+
+    folder = tmp_path / "agent"
+    shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
+    path = folder / "vecnormalize.npz"
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays[key] = np.float64(value)
+    with open(path, "wb") as fh:
+        np.savez(fh, **arrays)
+    with pytest.raises(ValueError, match=key) as info:
+        load_controller(str(folder))
+    assert "vecnormalize.npz" in str(info.value) and "\n" not in str(info.value)

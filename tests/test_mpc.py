@@ -189,12 +189,49 @@ def test_the_preview_observation_is_the_episodes_own_course():
             gym.make("MillVib-Valve-v1", config="rolling", observation={"preview_samples": bad})
 
 
+
+def test_the_history_observation_is_the_measured_channels_k_steps_ago():
+    """history_samples appends, per lag k, the measured channels as the agent saw them k steps earlier (the
+    episode's first observation before it), in the batched engine as in one environment; bad lags are refused."""
+    import gymnasium as gym
+
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.envs.observation import HISTORY_CHANNELS
+
+    lags = [1, 3]
+    kw = {"residual": True, "observation": {"force": True, "history_samples": lags}}
+    env = gym.make("MillVib-Valve-v1", config="rolling", **kw)
+    names = env.unwrapped.core.obs_names
+    now = [nm for nm in names if nm in HISTORY_CHANNELS]
+    assert now == list(HISTORY_CHANNELS)
+    assert names[-2 * len(now):] == [f"{nm}_lag_{k}" for k in lags for nm in now]
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (12, 1)).astype(np.float32)
+    seen = [env.reset(seed=120004)[0]]
+    for a in actions:
+        seen.append(env.step(a)[0])
+    seen = np.array(seen)
+    cols = [names.index(nm) for nm in now]
+    for k in lags:
+        lagged = seen[:, [names.index(f"{nm}_lag_{k}") for nm in now]]
+        past = np.concatenate([np.repeat(seen[:1, cols], k, axis=0), seen[:-k, cols]])
+        np.testing.assert_array_equal(lagged, past)
+    batch = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling", **kw)
+    out = [batch.reset([120004, 120005])[0]]
+    for a in actions:
+        out.append(batch.step(np.repeat(a[None], 2, axis=0))[0][0])
+    np.testing.assert_array_equal(np.array(out), seen)  # the same engine: the same bytes
+    for bad in ([3, 1], [0], [1, 257], "3"):
+        with pytest.raises(ValueError, match="history_samples"):
+            gym.make("MillVib-Valve-v1", config="rolling", observation={"history_samples": bad})
+
 @pytest.mark.parametrize("argv, what", [
     (["headroom", "--env-version", "v0", "--quiet"], "v1"),
     (["distill", "--iterations", "0", "--save-dir", "d"], "iterations"),
     (["distill", "--iterations", "5", "--episodes", "30", "--save-dir", "d"], "100 training plants"),
     (["distill", "--range-v", "nan", "--save-dir", "d"], "range_v"),
     (["distill", "--net", "0", "--save-dir", "d"], "net"),
+    (["distill", "--history", "4", "2", "--save-dir", "d"], "history_samples"),
     (["distill", "--save-dir", "/proc/version/x"], "--save-dir"),
 ])
 def test_the_new_commands_refuse_bad_input_in_one_line_before_any_work(argv, what, tmp_path, monkeypatch, capsys):
@@ -233,3 +270,15 @@ def test_a_new_episode_starts_the_oracle_afresh():
     second = _plain_episode(ctrl, env, 320002)
     fresh = load_controller("mpc-oracle", "varied", version="v1")
     assert _plain_episode(fresh, fresh.make_env(**SHORT), 320002) == second
+
+
+def test_the_offset_free_estimate_removes_a_steady_model_error_whole():
+    """The prediction already holds the estimate w, so what it misses is r - w for a steady model error r: the
+    estimate must settle at r (zero miss), not at r / 2 as a filter of the miss itself does."""
+    from millvib_env.control.mpc import offset_free_update
+
+    r = np.array([2.0e-7, -3.0e-4, 5.0e3, 0.0])
+    w = None
+    for _ in range(400):
+        w = offset_free_update(w, r - (0.0 if w is None else w), 0.1)
+    np.testing.assert_allclose(w, r, rtol=1e-6)

@@ -10,12 +10,27 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["real", "integer", "integers", "choice", "instance", "strings", "reals", "band", "seed_or_none"]
+__all__ = ["as_float", "shown", "real", "integer", "integers", "choice", "instance", "strings", "reals", "band",
+           "seed_or_none"]
+
+
+def shown(value: Any) -> str:
+    """A value as an error message shows it: its repr, cut to 60 characters."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _fail(name: str, value: Any, allowed: str):
-    text = repr(value)
-    raise ValueError(f"{name} = {text if len(text) <= 60 else text[:57] + '...'} is invalid: {allowed}")
+    raise ValueError(f"{name} = {shown(value)} is invalid: {allowed}")
+
+
+def as_float(value: Any) -> float:
+    """float(value), with an integer beyond a float's range as +-inf (not an OverflowError), so the caller's
+    finiteness check refuses it in its one line."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def _is_real(value: Any) -> bool:
@@ -31,9 +46,9 @@ def real(name: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf, 
     if hi < math.inf:
         bounds.append(f"{'<' if hi_open else '<='} {hi:g}")
     allowed = "a finite number" + (" " + " and ".join(bounds) if bounds else "")
-    if not _is_real(value) or not math.isfinite(float(value)):
+    if not _is_real(value) or not math.isfinite(as_float(value)):
         _fail(name, value, allowed)
-    v = float(value)
+    v = as_float(value)
     if v < lo or v > hi or (lo_open and v == lo) or (hi_open and v == hi):
         _fail(name, value, allowed)
     return v

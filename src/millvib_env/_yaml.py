@@ -1,4 +1,5 @@
-"""YAML loading that reads 1e4 and 2.5e9 as numbers (PyYAML's YAML 1.1 rules read them as strings)."""
+"""YAML loading that reads 1e4 and 2.5e9 as numbers (PyYAML's YAML 1.1 rules read them as strings) and refuses
+what a config file never needs: aliases, deep nesting and repeated keys."""
 
 from __future__ import annotations
 
@@ -9,8 +10,43 @@ from typing import Any
 import yaml
 
 
+#: the deepest nesting a config file may have (the project's own are at most 5 deep)
+MAX_DEPTH = 32
+
+
 class _Loader(yaml.SafeLoader):
-    pass
+    """SafeLoader that refuses, while composing (before anything is built or expanded): an alias (``*name``,
+    which lets a small file expand without bound), nesting deeper than `MAX_DEPTH`, and a key given twice in
+    one mapping (PyYAML keeps the last one silently)."""
+
+    _depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            raise yaml.composer.ComposerError(None, None, "an alias (*name) is not allowed in a config file",
+                                              self.peek_event().start_mark)
+        self._depth += 1
+        try:
+            if self._depth > MAX_DEPTH:
+                raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_DEPTH} levels",
+                                                  self.peek_event().start_mark)
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicate = key in seen
+                seen.add(key)
+            except TypeError:  # an unhashable key: PyYAML's own error follows
+                continue
+            if duplicate:
+                raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} is given twice",
+                                                        key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
 
 
 _Loader.add_implicit_resolver(

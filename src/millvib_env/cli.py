@@ -235,7 +235,7 @@ def _cmd_distill(args) -> int:
     check_result_folder(args.save_dir, "--save-dir", "distill", own_files=AGENT_FILES)
     card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
-                   net=tuple(args.net), range_v=args.range_v,
+                   net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
                    command="millvib " + " ".join(sys.argv[1:]))
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
@@ -392,12 +392,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "preview adds), instead of less the digital PID's own command (default: the PID's)")
     p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
     p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
-    p.add_argument("--episodes", type=int, default=20, help="training episodes per iteration (default 20)")
-    p.add_argument("--epochs", type=int, default=15, help="least-squares epochs per iteration (default 15)")
-    p.add_argument("--net", type=int, nargs="+", default=[64, 64], metavar="UNITS",
-                   help="the student's hidden layers (default 64 64)")
-    p.add_argument("--range-v", type=float, default=10.0,
-                   help="the residual's range in volts: action 1 adds this to the PID's command (default 10)")
+    p.add_argument("--episodes", type=int, default=25, help="training episodes per iteration (default 25)")
+    p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
+    p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
+                   help="the student's hidden layers (default 256 256)")
+    p.add_argument("--range-v", type=float, default=20.0,
+                   help="the residual's range in volts: action 1 adds this to the PID's command (default 20)")
+    p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
+                   help="the student also reads the measured channels as they were K loop samples ago, for each K "
+                        "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
     p.add_argument("--save-dir", required=True, metavar="DIR",
                    help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

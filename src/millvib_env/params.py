@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+from millvib_env._checks import as_float, shown
 from millvib_env._yaml import load_yaml
 
 from millvib_env._paths import config_dir
@@ -110,12 +111,12 @@ class MillParams:
             value = getattr(self, f.name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
                 raise ValueError(
-                    f"MillParams.{f.name} = {value!r} is invalid: must be a real number ({f.metadata['rule']})")
-            value = float(value)
+                    f"MillParams.{f.name} = {shown(value)} is invalid: must be a real number ({f.metadata['rule']})")
+            given, value = value, as_float(value)
             object.__setattr__(self, f.name, value)
-            if math.isnan(value) or (math.isinf(value) and f.name not in _MAY_BE_INF):
+            if math.isnan(value) or (math.isinf(value) and (f.name not in _MAY_BE_INF or given != value)):
                 raise ValueError(
-                    f"MillParams.{f.name} = {value!r} is invalid: must be finite ({f.metadata['rule']})")
+                    f"MillParams.{f.name} = {shown(given)} is invalid: must be finite ({f.metadata['rule']})")
         for name, ok in self._checks():
             if not ok:
                 f = self.__dataclass_fields__[name]
@@ -154,7 +155,7 @@ class MillParams:
         """A copy with some fields changed (validated); unknown names raise ValueError."""
         unknown = set(changes) - set(PARAM_FIELDS)
         if unknown:
-            raise ValueError(f"unknown MillParams field(s) {sorted(unknown)}; known: {list(PARAM_FIELDS)}")
+            raise ValueError(f"unknown MillParams field(s) {sorted(unknown, key=repr)}; known: {list(PARAM_FIELDS)}")
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, float]:
@@ -168,7 +169,7 @@ class MillParams:
     def from_dict(cls, data: Mapping[str, Any]) -> "MillParams":
         unknown = set(data) - set(PARAM_FIELDS)
         if unknown:
-            raise ValueError(f"unknown MillParams field(s) {sorted(unknown)}; known: {list(PARAM_FIELDS)}")
+            raise ValueError(f"unknown MillParams field(s) {sorted(unknown, key=repr)}; known: {list(PARAM_FIELDS)}")
         return cls(**{k: _as_float(k, v) for k, v in data.items()})
 
     @classmethod
@@ -219,10 +220,10 @@ class PIDGains:
         for name in ("kp", "ki", "kd", "kpl", "kff"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(f"PIDGains.{name} = {value!r} is invalid: must be a real number >= 0")
-            value = float(value)
+                raise ValueError(f"PIDGains.{name} = {shown(value)} is invalid: must be a real number >= 0")
+            given, value = value, as_float(value)
             if not math.isfinite(value) or value < 0:
-                raise ValueError(f"PIDGains.{name} = {value!r} is invalid: allowed range is [0, inf) (finite)")
+                raise ValueError(f"PIDGains.{name} = {shown(given)} is invalid: allowed range is [0, inf) (finite)")
             object.__setattr__(self, name, value)
 
     def to_array(self) -> np.ndarray:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.policies import baseline_names
@@ -60,6 +61,41 @@ AGENT_ENV_KEYS = frozenset({"config", "residual", "observe_params", "observe_pha
                             "reward"})
 
 
+#: the card's keys the project reads, with the type each must have
+CARD_TYPES = {"env_id": str, "algo": str, "name": str, "task": str, "backend": str, "normalize": str,
+              "env_kwargs": dict, "seed": int}
+#: the largest card read (a card is a few kB)
+MAX_CARD_BYTES = 2**20
+
+
+def read_card(path: str | Path) -> dict:
+    """An agent's card.json, validated as data: a regular JSON file of at most `MAX_CARD_BYTES`, a mapping whose
+    keys of `CARD_TYPES` have their types (a seed a whole number in [0, 2^31)); otherwise a ValueError of one
+    line naming the file (and the key)."""
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise ValueError("no such file" if not path.exists() else "not a regular file")
+        if path.stat().st_size > MAX_CARD_BYTES:
+            raise ValueError(f"larger than {MAX_CARD_BYTES // 2**20} MiB")
+        card = json.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise ValueError(f"{path} is not a valid model card: nested too deeply") from None
+    except OSError as err:
+        raise ValueError(f"{path} cannot be read: {err.strerror or type(err).__name__}") from None
+    except ValueError as err:  # JSON and Unicode errors too
+        raise ValueError(f"{path} is not a valid model card: {str(err).splitlines()[0]}") from None
+    if not isinstance(card, dict):
+        raise ValueError(f"{path} is not a valid model card: a JSON object is needed, not {type(card).__name__}")
+    for key, kind in CARD_TYPES.items():
+        if key in card and (not isinstance(card[key], kind) or isinstance(card[key], bool)):
+            raise ValueError(f"{path}: {key} = {shown(card[key])} is invalid: must be a JSON "
+                             f"{ {str: 'string', dict: 'object', int: 'whole number'}[kind] }")
+    if "seed" in card and not 0 <= card["seed"] < 2**31:
+        raise ValueError(f"{path}: seed = {shown(card['seed'])} is invalid: a whole number in [0, 2^31)")
+    return card
+
+
 class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
@@ -71,12 +107,9 @@ class AgentPolicy(Controller):
         if not card_path.exists():
             raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
         self.shipped = verify_agent(folder)
-        try:
-            self.card = json.loads(card_path.read_text())
-            self.card["env_id"], self.card["algo"]
-        except (ValueError, KeyError, TypeError) as err:
-            raise ValueError(f"{card_path} is not a valid model card ({type(err).__name__}: {err}); it needs at "
-                             "least 'algo' and 'env_id'") from None
+        self.card = read_card(card_path)
+        if "env_id" not in self.card or "algo" not in self.card:
+            raise ValueError(f"{card_path} is not a valid model card: it needs at least 'algo' and 'env_id'")
         self.name = self.card.get("name", folder.name)
         self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
@@ -146,9 +179,9 @@ def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
     folder = Path(folder)
     if (folder / "card.json").exists():
         try:
-            seed = int(json.loads((folder / "card.json").read_text()).get("seed", 0))
-        except (ValueError, TypeError, AttributeError):
-            seed = 0
+            seed = int(read_card(folder / "card.json").get("seed", 0))
+        except ValueError:
+            seed = 0  # the card is refused in one line when the agent is loaded
         return {seed: folder}
     found = {}
     for p in folder.glob("seed-*"):
@@ -162,10 +195,7 @@ def agent_seed_folders(folder: str | Path) -> dict[int, Path]:
 
 def _agent_card_key(folder: Path, key: str, default: str) -> str:
     first = next(iter(agent_seed_folders(folder).values()))
-    try:
-        value = json.loads((first / "card.json").read_text()).get(key, default)
-    except (ValueError, AttributeError) as err:
-        raise ValueError(f"{first / 'card.json'} is not a valid model card: {err}") from None
+    value = read_card(first / "card.json").get(key, default)
     return value if isinstance(value, str) else default
 
 

@@ -37,14 +37,22 @@ def load_control_config(task: str = "startup", version: str = "v0") -> dict[str,
     return load_yaml(path, "control config", mapping=True)
 
 
-def control_entry(task: str, name: str, version: str = "v0") -> dict:
+def control_entry(task: str, name: str, version: str = "v0", _via: tuple = ()) -> dict:
+    """Entry `name` of the task's control config, following `from_task` (a cycle is refused in one line)."""
+    task = get_task(task).name
+    if task in _via:
+        raise ValueError(f"{control_config_path(task, version)} {name}: from_task runs in a cycle "
+                         f"({' -> '.join(_via + (task,))}); one of them must hold the entry itself")
     data = load_control_config(task, version)
     if name not in data:
         raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
-                         f"{get_task(task).name} --env-version {version} --only {name} --write-config)")
+                         f"{task} --env-version {version} --only {name} --write-config)")
     entry = data[name]
-    if "from_task" in entry:
-        return control_entry(entry["from_task"], name, version)
+    if isinstance(entry, dict) and "from_task" in entry:
+        if not isinstance(entry["from_task"], str):
+            raise ValueError(f"{control_config_path(task, version)} {name}.from_task = {entry['from_task']!r:.60} "
+                             "is invalid: a task name")
+        return control_entry(entry["from_task"], name, version, _via + (task,))
     return entry
 
 

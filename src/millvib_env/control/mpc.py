@@ -44,7 +44,8 @@ from millvib_env.control.base import Controller
 from millvib_env.params import MillParams
 from millvib_env.threads import one_blas_thread
 
-__all__ = ["MPCSettings", "MPCModel", "MPCPolicy", "mpc_model", "REBUILD_LOG_STEP", "REBUILD_XD_M"]
+__all__ = ["MPCSettings", "MPCModel", "MPCPolicy", "mpc_model", "offset_free_update", "REBUILD_LOG_STEP",
+           "REBUILD_XD_M"]
 
 #: the plant moves this far in log c1 or log Ct before the model is rebuilt (2 %)
 REBUILD_LOG_STEP = 0.02
@@ -102,6 +103,13 @@ class MPCModel:
     P: np.ndarray         # (ns, ns) the terminal one (the discrete Riccati solution)
     solver: object = None  # OSQP, set up on the scaled problem
     q_scale: float = 1.0
+
+
+def offset_free_update(w: np.ndarray | None, miss: np.ndarray, a: float) -> np.ndarray:
+    """The model's one-step residual, estimated: `miss` is what the last prediction, which already held the
+    estimate `w`, missed; the estimate integrates it (gain `a` per sample). A steady model error r is then
+    removed whole (w -> r, zero miss); a filter of the miss itself, w + a (miss - w), settles at r / 2."""
+    return a * miss if w is None else w + a * miss
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -294,7 +302,7 @@ class MPCPolicy(Controller):
         if a > 0.0 and self._pred[i] is not None and self._pred[i].shape == y[m.keep].shape:
             miss = np.zeros_like(s)
             miss[:-1] = y[m.keep] - self._pred[i]
-            w = miss * a if w is None or w.shape != s.shape else w + a * (miss - w)
+            w = offset_free_update(None if w is None or w.shape != s.shape else w, miss, a)
             self._w[i] = w
         if w is None or w.shape != s.shape:
             w = np.zeros_like(s)

@@ -8,6 +8,7 @@ SB3's own `VecNormalize.load` when a run is resumed from a checkpoint (a trusted
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,6 +60,12 @@ def load_obs_stats(path: str | Path, obs_dim: int | None = None) -> ObsStats:
     if stats.mean.ndim != 1 or stats.mean.shape != stats.var.shape or not np.all(np.isfinite(stats.mean)) \
             or not np.all(np.isfinite(stats.var)) or np.any(stats.var < 0):
         raise ValueError(f"{path}: mean and var must be finite vectors of one length, var >= 0")
+    for name, value in (("clip_obs", stats.clip_obs), ("epsilon", stats.epsilon)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{path}: {name} = {value!r} is invalid: must be finite and > 0 (VecNormalize's "
+                             "clip_obs and epsilon)")
+    if not (math.isfinite(stats.count) and stats.count >= 0):
+        raise ValueError(f"{path}: count = {stats.count!r} is invalid: must be finite and >= 0")
     if obs_dim is not None and stats.mean.size != obs_dim:
         raise ValueError(f"{path} holds statistics of {stats.mean.size} observations; the agent's environment "
                          f"has {obs_dim}")

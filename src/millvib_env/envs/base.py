@@ -244,6 +244,10 @@ class ValveEnv(MillVibEnv):
     force's change (signed-log, as the force channel) and the set-point's change (signed-log, as the
     error) from the hold that starts now to the one k samples ahead, from the episode's own course:
     what an entry-thickness gauge upstream of the stand and the pass schedule tell a controller.
+    Optional history (``observation.history_samples``, a list of lags k in agent steps): per k, the
+    measured channels (error, velocity, acceleration, pressure, last action, PID command, load force,
+    those present) as they were k steps ago, appended last (names ``<channel>_lag_<k>``; an episode's
+    first observation fills the steps before it).
 
     ## Rewards
 

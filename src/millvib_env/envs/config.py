@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from millvib_env._paths import config_dir
+from millvib_env._checks import as_float, shown
 from millvib_env._yaml import load_yaml
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
@@ -104,9 +105,13 @@ class ObservationSettings:
     #: a preview: the rolling force's and the set-point's change from now to this many control samples ahead
     #: (an entry-thickness gauge upstream of the stand and the pass schedule); empty: none
     preview_samples: tuple = ()
+    #: a history: the measured channels (`observation.HISTORY_CHANNELS`) as they were this many agent steps
+    #: ago (what a recurrent controller would remember); empty: none
+    history_samples: tuple = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "preview_samples", tuple(int(k) for k in self.preview_samples))
+        object.__setattr__(self, "history_samples", tuple(int(k) for k in self.history_samples))
 
 
 @dataclass(frozen=True)
@@ -212,7 +217,7 @@ class EnvConfig:
 
 # --- the schema --------------------------------------------------------------------------------
 def _fail(path: str, value: Any, allowed: str) -> None:
-    raise ValueError(f"env config {path} = {value!r} is invalid: {allowed}")
+    raise ValueError(f"env config {path} = {shown(value)} is invalid: {allowed}")
 
 
 def _number(path: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
@@ -220,7 +225,7 @@ def _number(path: str, value: Any, *, lo: float = -math.inf, hi: float = math.in
     ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
     if isinstance(value, bool) or not ok_type:
         _fail(path, value, f"must be {'an integer' if integer else 'a number'}" + _bounds(lo, hi, lo_open))
-    if not math.isfinite(value) or value < lo or value > hi or (lo_open and value == lo):
+    if not math.isfinite(as_float(value)) or value < lo or value > hi or (lo_open and value == lo):
         _fail(path, value, "must be finite" + _bounds(lo, hi, lo_open))
     return value
 
@@ -238,14 +243,28 @@ def _bounds(lo: float, hi: float, lo_open: bool) -> str:
 MAX_PREVIEW_SAMPLES = 400
 
 
-def _preview(path: str, value: Any) -> list:
-    """A strictly increasing list of look-aheads in control samples, each in [1, MAX_PREVIEW_SAMPLES]."""
-    if not isinstance(value, (list, tuple)) or len(value) > 32:
-        _fail(path, value, f"must be a list of at most 32 increasing integers in [1, {MAX_PREVIEW_SAMPLES}]")
-    out = [int(_number(f"{path}[{i}]", v, lo=1, hi=MAX_PREVIEW_SAMPLES, integer=True)) for i, v in enumerate(value)]
+def _increasing(path: str, value: Any, hi: int, most: int) -> list:
+    """A strictly increasing list of at most `most` integers, each in [1, hi]."""
+    if not isinstance(value, (list, tuple)) or len(value) > most:
+        _fail(path, value, f"must be a list of at most {most} increasing integers in [1, {hi}]")
+    out = [int(_number(f"{path}[{i}]", v, lo=1, hi=hi, integer=True)) for i, v in enumerate(value)]
     if any(b <= a for a, b in zip(out, out[1:])):
         _fail(path, value, "must be strictly increasing")
     return out
+
+
+def _preview(path: str, value: Any) -> list:
+    """Look-aheads in control samples, each in [1, MAX_PREVIEW_SAMPLES]."""
+    return _increasing(path, value, MAX_PREVIEW_SAMPLES, 32)
+
+
+#: the oldest history an observation may carry (agent steps)
+MAX_HISTORY_SAMPLES = 256
+
+
+def _history(path: str, value: Any) -> list:
+    """Lags in agent steps, each in [1, MAX_HISTORY_SAMPLES]."""
+    return _increasing(path, value, MAX_HISTORY_SAMPLES, 16)
 
 
 def _bool(path: str, value: Any) -> bool:
@@ -271,7 +290,7 @@ def _section(path: str, value: Any, fields: Mapping[str, Callable[[str, Any], An
         _fail(path, value, f"must be a mapping with keys {sorted(fields)}")
     unknown = set(value) - set(fields)
     if unknown:
-        raise ValueError(f"env config {path}: unknown key(s) {sorted(unknown)}; known: {sorted(fields)}")
+        raise ValueError(f"env config {path}: unknown key(s) {sorted(unknown, key=repr)}; known: {sorted(fields)}")
     missing = [k for k in required if k not in value]
     if missing:
         raise ValueError(f"env config {path}: missing key(s) {missing}")
@@ -291,6 +310,19 @@ def _pos(path, v):
 
 def _nonneg(path, v):
     return _number(path, v, lo=0.0)
+
+
+#: the largest reward weight or penalty, and the range of a reward scale: an episode's return stays finite
+#: (a step's cost is at most MAX_WEIGHT x (1e4 mm/s / 1e-6)^2 ~ 1e26, far from a float's 1.8e308)
+MAX_WEIGHT, SCALE_RANGE = 1.0e6, (1.0e-6, 1.0e6)
+
+
+def _weight(path, v):
+    return _number(path, v, lo=0.0, hi=MAX_WEIGHT)
+
+
+def _scale(path, v):
+    return _number(path, v, lo=SCALE_RANGE[0], hi=SCALE_RANGE[1])
 
 
 def _nonneg_pair(path, v):
@@ -380,7 +412,7 @@ def control_config_path(task: str, version: str = "v0") -> Path:
     return (folder if version == "v0" else folder / version) / f"{task}.yaml"
 
 
-def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[float]:
+def named_gains(name: str, task: str = "startup", version: str = "v0", _via: tuple = ()) -> list[float]:
     """The gains of the fixed-gain baseline `name` of `task` in environment version `version`, from its
     control config (`control_config_path`; the paper's PID from MillParams' module), checked: 3-5 finite
     numbers >= 0."""
@@ -392,11 +424,14 @@ def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[f
         return [float(g) for g in PAPER_GAINS.to_array()]
     path = control_config_path(task, version)
     where = f"{path.relative_to(config_dir().parent) if path.is_relative_to(config_dir().parent) else path} {name}"
+    if task in _via:
+        raise ValueError(f"{where}: from_task runs in a cycle ({' -> '.join(_via + (task,))}); one of them must "
+                         "hold the gains itself")
     table = load_yaml(path, "control config")
     entry = table.get(name) if isinstance(table, dict) else None
     if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
             entry["from_task"] != task:
-        return named_gains(name, entry["from_task"], version)
+        return named_gains(name, entry["from_task"], version, _via + (task,))
     return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
                          f"run millvib tune --task {task} --env-version {version} --only {name} --write-config")
 
@@ -453,9 +488,9 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
             "force_noise_n", "force_cutoff_hz")})})),
     "disturbances": lambda p, v: _section(p, v, _DISTURBANCES),
     "reward": lambda p, v: _section(p, v, {
-        "vibration_scale_mm_s": _pos, "tracking_scale_um": _pos, "vib_time_constant_s": _pos,
-        "w_vibration": _nonneg, "w_tracking": _nonneg, "w_effort": _nonneg, "w_offset": _nonneg,
-        "terminal_penalty": _nonneg, "terminal_per_step": _nonneg},
+        "vibration_scale_mm_s": _scale, "tracking_scale_um": _scale, "vib_time_constant_s": _scale,
+        "w_vibration": _weight, "w_tracking": _weight, "w_effort": _weight, "w_offset": _weight,
+        "terminal_penalty": _weight, "terminal_per_step": _weight},
         required=("vibration_scale_mm_s", "tracking_scale_um", "vib_time_constant_s", "w_vibration",
                   "w_tracking", "w_effort", "terminal_penalty")),
     "actions": lambda p, v: _section(p, v, {
@@ -471,7 +506,7 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
             pp, vv, lo=1.0, hi=9.0, lo_open=True)},
         required=("x_max_m", "p_min_pa", "p_max_factor")),
     "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool,
-                                                "preview_samples": _preview}),
+                                                "preview_samples": _preview, "history_samples": _history}),
 }
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",
@@ -540,7 +575,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", *, version:
     _resolve_names(data, _task_of(config), version)
     unknown = set(data) - _TOP_KEYS
     if unknown:
-        raise ValueError(f"unknown env config key(s) {sorted(unknown)}; known: {sorted(_TOP_KEYS)}")
+        raise ValueError(f"unknown env config key(s) {sorted(unknown, key=repr)}; known: {sorted(_TOP_KEYS)}")
     missing = sorted(_TOP_KEYS - _OPTIONAL_KEYS - set(data))
     if missing:
         raise ValueError(f"env config is missing key(s) {missing}")

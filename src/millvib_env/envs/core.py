@@ -100,7 +100,7 @@ class MillVibCore:
         self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
                                  observe_phase=observe_phase, observe_params=observe_params,
                                  observe_force=self.observe_force, noise=noise, delay=delay, n=self.n,
-                                 preview_samples=seen.preview_samples)
+                                 preview_samples=seen.preview_samples, history_samples=seen.history_samples)
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)

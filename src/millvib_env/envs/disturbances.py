@@ -151,7 +151,7 @@ def build_disturbances(spec: dict) -> tuple[list, SensorNoise | None, int]:
             items.append(cls(dict(spec[key])))
     unknown = set(spec) - set(_PROFILE_KINDS) - {"sensor_noise", "delay_steps"}
     if unknown:
-        raise ValueError(f"unknown disturbance(s) {sorted(unknown)}; known: {sorted(_PROFILE_KINDS)}, "
+        raise ValueError(f"unknown disturbance(s) {sorted(unknown, key=repr)}; known: {sorted(_PROFILE_KINDS)}, "
                          "sensor_noise, delay_steps")
     noise = SensorNoise(**spec["sensor_noise"]) if spec.get("sensor_noise") else None
     return items, noise, int(spec.get("delay_steps") or 0)

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from millvib_env._checks import as_float, shown
 from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile
 from millvib_env.params import PARAM_FIELDS, MillParams
@@ -43,7 +44,8 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
         raise ValueError(f"reset options = {options!r} is invalid: a dict with keys {list(RESET_OPTIONS)}")
     unknown = set(options) - set(RESET_OPTIONS)
     if unknown:
-        raise ValueError(f"unknown reset option(s) {sorted(unknown)}: use {', '.join(map(repr, RESET_OPTIONS))}")
+        raise ValueError(f"unknown reset option(s) {sorted(unknown, key=repr)}: use "
+                         f"{', '.join(map(repr, RESET_OPTIONS))}")
     out = dict(options)
     params = out.get("params")
     if params is not None:
@@ -56,7 +58,7 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise ValueError(f"reset option params.{k} = {v!r} is invalid: must be a number")
-        config.base_params.replace(**{k: float(v) for k, v in params.items()})  # range checks
+        config.base_params.replace(**dict(params))  # range checks (MillParams refuses a number beyond a float)
     scenario = out.get("scenario")
     if scenario is not None and not isinstance(scenario, str):
         raise ValueError(f"reset option scenario = {scenario!r} is invalid: a scenario name")
@@ -64,8 +66,8 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
     if x0 is not None:
         x_max = config.envelope.x_max_m
         if isinstance(x0, bool) or not isinstance(x0, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(x0) or abs(x0) >= x_max:
-            raise ValueError(f"reset option x0 = {x0!r} m is invalid: a finite displacement with |x0| < "
+                or not math.isfinite(as_float(x0)) or abs(x0) >= x_max:
+            raise ValueError(f"reset option x0 = {shown(x0)} m is invalid: a finite displacement with |x0| < "
                              f"envelope.x_max_m = {x_max} m")
     return out
 

@@ -12,10 +12,14 @@ import numpy as np
 
 from millvib_env.params import studied_range
 
-__all__ = ["slog", "OBS_SCALES", "PARAM_OBS_RANGES", "Observer"]
+__all__ = ["slog", "OBS_SCALES", "PARAM_OBS_RANGES", "HISTORY_CHANNELS", "Observer"]
 
 #: with observe_params, log c1 and log Ct are mapped linearly from these ranges to [-1, 1]
 PARAM_OBS_RANGES = {"c1": studied_range("c1"), "Ct": studied_range("Ct")}
+
+#: the channels a history (`ObservationSettings.history_samples`) repeats: what the loop's sensors measured and
+#: what the controller itself sent, never the preview, the phase or the true parameters
+HISTORY_CHANNELS = ("error", "velocity", "acceleration", "pressure", "last_action", "pid_command", "load_force")
 
 # observation scales: (name, unit, q0, q_max) for the signed-log channels
 OBS_SCALES = {
@@ -49,7 +53,7 @@ class Observer:
 
     def __init__(self, mode: str, *, residual: bool, gain_names: tuple[str, ...], observe_phase: bool,
                  observe_params: bool, noise, delay: int, n: int, observe_force: bool = False,
-                 preview_samples: tuple = ()):
+                 preview_samples: tuple = (), history_samples: tuple = ()):
         self.mode, self.residual, self.noise, self.delay = mode, residual, noise, delay
         self.observe_phase, self.observe_params, self.observe_force = observe_phase, observe_params, observe_force
         names = ["error", "velocity", "acceleration", "pressure", "vibration"]
@@ -66,8 +70,16 @@ class Observer:
         self.preview_samples = tuple(preview_samples)
         names += [f"preview_force_{k}" for k in self.preview_samples]
         names += [f"preview_setpoint_{k}" for k in self.preview_samples]
+        # a history: the measured channels as they were k agent steps ago, for each k (the newest first)
+        self.history_samples = tuple(history_samples)
+        self._hist_cols = np.array([j for j, nm in enumerate(names) if nm in HISTORY_CHANNELS], dtype=np.intp)
+        self._n_now = len(names)
+        names += [f"{names[j]}_lag_{k}" for k in self.history_samples for j in self._hist_cols]
         self.names = names
         self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
+        depth = max(self.history_samples) + 1 if self.history_samples else 0
+        self._hist = np.zeros((n, depth, len(self._hist_cols)), dtype=np.float32)
+        self._lags = np.array(self.history_samples, dtype=np.intp)
 
     def build(self, idx: np.ndarray, noise_rngs, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
               params, force=None, preview=None) -> np.ndarray:
@@ -98,15 +110,27 @@ class Observer:
             df, dxd = preview
             cols += list(slog(np.asarray(df, float), *OBS_SCALES["load_force"][2:]).T)
             cols += list(slog(np.asarray(dxd, float), *OBS_SCALES["error"][2:]).T)
-        return np.stack(cols, axis=1).astype(np.float32)
+        rows = np.stack(cols, axis=1).astype(np.float32)
+        if self.history_samples:  # filled by start / push, which see every step of every environment
+            rows = np.concatenate([rows, np.zeros((len(rows), len(self.names) - self._n_now), np.float32)], axis=1)
+        return rows
 
     def start(self, i: int, obs: np.ndarray) -> np.ndarray:
-        """A new episode in environment i: the delay line holds its first observation."""
+        """A new episode in environment i: the delay line and the history hold its first observation."""
+        if self.history_samples:
+            self._hist[i] = obs[self._hist_cols]
+            obs = obs.copy()
+            obs[self._n_now:] = self._hist[i, self._lags].reshape(-1)
         self.buffer[i] = obs
         return self.buffer[i, 0].copy()
 
     def push(self, obs: np.ndarray) -> np.ndarray:
         """Append this step's observations of every environment; return what the agent sees."""
+        if self.history_samples:
+            self._hist[:, 1:] = self._hist[:, :-1]
+            self._hist[:, 0] = obs[:, self._hist_cols]
+            obs = obs.copy()
+            obs[:, self._n_now:] = self._hist[:, self._lags].reshape(len(obs), -1)
         if self.delay:
             self.buffer[:, 1:] = self.buffer[:, :-1]
         self.buffer[:, 0] = obs

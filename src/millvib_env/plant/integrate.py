@@ -22,7 +22,7 @@ from typing import Callable, Sequence, Union
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from millvib_env._checks import choice, instance, real
+from millvib_env._checks import as_float, choice, instance, real, shown
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, STATES,
@@ -187,10 +187,10 @@ def _real(value) -> bool:
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     if not _real(t_end) or not _real(dt_out):
         raise ValueError(f"t_end = {t_end!r} s and dt_out = {dt_out!r} s must be numbers (s)")
-    if not (math.isfinite(t_end) and t_end > 0):
-        raise ValueError(f"t_end = {t_end!r} s is invalid: must be finite and > 0")
-    if not (math.isfinite(dt_out) and 0 < dt_out <= t_end):
-        raise ValueError(f"dt_out = {dt_out!r} s is invalid: must be in (0, t_end = {t_end}]")
+    if not (math.isfinite(as_float(t_end)) and t_end > 0):
+        raise ValueError(f"t_end = {shown(t_end)} s is invalid: must be finite and > 0")
+    if not (math.isfinite(as_float(dt_out)) and 0 < dt_out <= t_end):
+        raise ValueError(f"dt_out = {shown(dt_out)} s is invalid: must be in (0, t_end = {t_end}]")
     n = int(round(t_end / dt_out)) + 1
     if n > MAX_SAMPLES:
         raise ValueError(f"t_end = {t_end!r} s with dt_out = {dt_out!r} s would need {n:.3g} samples per run; "
@@ -344,7 +344,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         options = dict(ivp_options or {})
         unknown = set(options) - {"atol", "max_step"}
         if unknown:
-            raise ValueError(f"ivp_options: unknown key(s) {sorted(unknown)}; allowed: atol, max_step")
+            raise ValueError(f"ivp_options: unknown key(s) {sorted(unknown, key=repr)}; allowed: atol, max_step")
         YS, status, t_fail, n_steps = _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method,
                                                        p_max, progress, options)
     else:

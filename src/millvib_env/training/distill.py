@@ -7,8 +7,9 @@ rolling, two seeds). So the student is taught by the oracle (Ross et al., DAgger
 teacher of "learning by cheating"):
 
 1. the student runs in the residual valve environment on top of the reference (`pid-pf-robust`), reading
-   what a mill measures (position error and its filtered derivative, pressure, the load cells' force) and
-   the preview (`observation.preview_samples`); iteration 0 runs the reference alone (the zero action);
+   what a mill measures (position error and its filtered derivative, pressure, the load cells' force), those
+   channels' history (`observation.history_samples`) and the preview (`observation.preview_samples`);
+   iteration 0 runs the reference alone (the zero action);
 2. at every loop sample the teacher (`control.mpc`, attached to the same environments) computes the
    command it would send from the true state, and the label is the residual that would make the loop's
    command the teacher's: ``(u_teacher - u_pid) / residual_range`` (u_pid: the digital PID's own command at
@@ -34,16 +35,22 @@ import numpy as np
 from millvib_env._paths import write_text_atomic
 from millvib_env.tasks import get_task
 
-__all__ = ["distill", "DEFAULT_PREVIEW", "student_env_kwargs"]
+__all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "student_env_kwargs"]
 
 #: the preview's look-aheads (control samples: 0.5-20 ms at 2 kHz)
 DEFAULT_PREVIEW = (1, 2, 4, 8, 16, 24, 32, 40)
+#: the measured channels' history the student reads (control samples: 0.5-16 ms before)
+DEFAULT_HISTORY = (1, 2, 4, 8, 16, 32)
 
 
-def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0) -> dict:
-    """The student's environment: a residual of +-`range_v` on `base`, the load cells and the preview."""
-    return {"residual": True, "reward": {"w_vibration": 1.0, "w_effort": 0.0},
-            "observation": {"force": True, "preview_samples": list(preview)},
+def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0,
+                       history=()) -> dict:
+    """The student's environment: a residual of +-`range_v` on `base`, the load cells, the preview and (where
+    `history` names lags) the measured channels' history."""
+    seen = {"force": True, "preview_samples": list(preview)}
+    if history:
+        seen["history_samples"] = list(history)
+    return {"residual": True, "reward": {"w_vibration": 1.0, "w_effort": 0.0}, "observation": seen,
             "actions": {"residual_gains": base, "residual_range_v": float(range_v)}}
 
 
@@ -115,8 +122,8 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> 
 
 def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
             iterations: int = 4,
-            episodes: int = 20, epochs: int = 15, preview=DEFAULT_PREVIEW, save_dir: str | Path,
-            net: tuple = (64, 64), range_v: float = 10.0,
+            episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
+            net: tuple = (256, 256), range_v: float = 20.0, history=DEFAULT_HISTORY,
             progress: bool = True, command: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
@@ -144,7 +151,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
 
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     net = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
-    kwargs = student_env_kwargs(preview, range_v=range_v)
+    kwargs = student_env_kwargs(preview, range_v=range_v, history=history)
     teacher_ctrl = load_controller(teacher, t.name, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
