@@ -1,6 +1,7 @@
 """Bad input across the whole surface: every subcommand's flags, every output path, every config file
 and the public API's arguments give one line (exit 2 in the CLI, a ValueError in the API), never a
 traceback, a hang or a silent NaN."""
+import json
 import math
 import os
 import shutil
@@ -166,6 +167,45 @@ def test_a_damaged_config_file_is_named_in_one_line(name, damage, damaged_config
     assert os.path.basename(name) in line, line
     assert not (damaged_configs.parent / "PWNED").exists()  # nothing loaded from a config runs code
 
+
+@pytest.mark.parametrize("damage", ["a NaN gain", "a scalar entry", "a grid out of order", "a short table"])
+def test_a_damaged_oracle_table_is_refused_in_one_line(damaged_configs, capsys, damage):
+    """The per-plant gain tables are data: a NaN, a scalar, an unordered grid or a table of the wrong shape is
+    refused in one line naming the entry, never interpolated into NaN gains."""
+    import yaml
+
+    path = damaged_configs / "control" / "v1" / "rolling.yaml"
+    data = yaml.safe_load(path.read_text())
+    entry = data["pid-pf-oracle"]
+    if damage == "a NaN gain":
+        entry["log10_gains"][1][1][0] = float("nan")
+    elif damage == "a scalar entry":
+        data["pid-pf-oracle"] = 3
+    elif damage == "a grid out of order":
+        entry["c1_grid"] = entry["c1_grid"][::-1]
+    else:
+        entry["log10_gains"] = entry["log10_gains"][:-1]
+    path.write_text(yaml.safe_dump(data))
+    line = _one_line_refusal(["benchmark", "--task", "rolling", "--controllers", "pid-pf-oracle", "--episodes", "1",
+                              "--no-scenarios", "--quiet"], capsys)
+    assert "pid-pf-oracle" in line, line
+
+@pytest.mark.parametrize("kwargs, what", [({"randomize": {}}, "randomize"), ({"config": "change"}, "config"),
+                                          ([1, 2], "env_kwargs")])
+def test_hyperparameters_that_change_the_episode_are_refused_before_training(tmp_path, capsys, kwargs, what):
+    """What the finished agent's card would be refused for is refused before the first step: no run folder, no
+    training lost."""
+    import yaml
+
+    hp = yaml.safe_load((config_dir() / "agents" / "ppo.yml").read_text())
+    for entry in hp.values():  # whichever entry the default environment takes
+        entry["env_kwargs"] = json.loads(json.dumps(kwargs))  # a copy each: no YAML aliases
+    path = tmp_path / "hp.yml"
+    path.write_text(yaml.safe_dump(hp))
+    line = _one_line_refusal(["train", "--algo", "ppo", "--config", str(path), "--n-timesteps", "64", "--quiet",
+                              "--log-dir", str(tmp_path / "logs"), "--save-dir", str(tmp_path / "agent")], capsys)
+    assert what in line, line
+    assert not (tmp_path / "logs").exists() and not (tmp_path / "agent").exists()
 
 @pytest.mark.parametrize("name", ["pid-robust", "mpc-oracle"])
 def test_a_from_task_cycle_between_control_configs_is_refused_in_one_line(damaged_configs, capsys, name):

@@ -154,6 +154,16 @@ def test_a_severity_window_outside_the_run_is_refused(t_start):
     (lambda: __import__("millvib_env.training.benchmark", fromlist=["x"]).run_benchmark("pid-paper", episodes=2,
                                                                                         progress=False),
      "controllers"),
+    (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(x0=-0.15), "x0"),
+    (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(t_end=10 ** 400), "t_end"),
+    (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(
+        __import__("millvib_env").MillParams(dp_reg=1e300)), "dp_reg"),
+    (lambda: __import__("millvib_env").MillParams(c1=10 ** 400), "c1"),
+    (lambda: __import__("gymnasium").make("MillVib-GainSchedule-v1", config="rolling", reward={"w_offset": 1e308}),
+     "w_offset"),
+    (lambda: __import__("gymnasium").make("MillVib-Valve-v1", config="rolling",
+                                          reward={"vibration_scale_mm_s": 1e-300}), "vibration_scale_mm_s"),
+    (lambda: __import__("millvib_env").PIDGains(1.0, 10 ** 400, 0.0), "ki"),
 ])
 def test_api_arguments_of_the_wrong_type_are_a_valueerror_naming_them(call, name):
     with pytest.raises(ValueError, match=name):

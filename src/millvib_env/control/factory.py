@@ -65,8 +65,31 @@ def _checked_gains(task: str, name: str, entry: dict) -> list[float]:
 
 
 def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> GainTable:
+    """The gain table of oracle `name`, checked as data: positive increasing grids of finite numbers and finite
+    log10 gains of shape (len(c1_grid), len(ct_grid), 3-5), gains within 1e-12 to 1e15."""
     entry = control_entry(task, name, version)
-    return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
+    where = f"{control_config_path(task, version)} {name}"
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where} = {entry!r:.60} is invalid: a mapping with c1_grid, ct_grid and log10_gains")
+    grids = []
+    for key in ("c1_grid", "ct_grid"):
+        try:
+            g = np.asarray(entry.get(key), dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            g = np.zeros(0)
+        if g.ndim != 1 or g.size < 2 or not np.all(np.isfinite(g)) or np.any(g <= 0) or np.any(np.diff(g) <= 0):
+            raise ValueError(f"{where}.{key} = {entry.get(key)!r:.60} is invalid: at least 2 increasing finite "
+                             "numbers > 0")
+        grids.append(g)
+    try:
+        table = np.asarray(entry.get("log10_gains"), dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        table = np.zeros(0)
+    if table.shape[:2] != (grids[0].size, grids[1].size) or table.ndim != 3 or not 3 <= table.shape[2] <= 5 \
+            or not np.all(np.isfinite(table)) or np.any(np.abs(table) > 15):
+        raise ValueError(f"{where}.log10_gains is invalid: finite log10 gains in [-15, 15] of shape "
+                         f"({grids[0].size}, {grids[1].size}, 3-5), one row per grid plant")
+    return GainTable(grids[0], grids[1], table)
 
 
 def _mpc(name: str, task: str, version: str) -> Controller:

@@ -315,6 +315,9 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
     P = np.stack([pack(p) for p in p_list])
     if y0 is None:
+        for p, xx in zip(p_list, x0s):  # before the start's pressure balance divides by the chamber's length
+            if not (-p.L1 < xx < p.L - p.L1):
+                raise ValueError(f"x0 = {float(xx)!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
         Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
     else:
         Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))

@@ -150,7 +150,7 @@ def pack(params: MillParams) -> np.ndarray:
     p = np.empty(NPACK)
     p[:NP] = params.to_array()
     p[D_KQ] = params.Cd * params.W * math.sqrt(2.0 / params.rho) * params.Ksv * params.Kp1
-    p[D_DPR2] = params.dp_reg ** 2
+    p[D_DPR2] = params.dp_reg * params.dp_reg
     p[D_BA] = params.beta_e / params.Ap
     p[D_W] = 2.0 * math.pi * params.pulse_freq
     p[D_INVVS] = 1.0 / params.vs
@@ -161,7 +161,17 @@ def pack(params: MillParams) -> np.ndarray:
     p[D_KQX] = params.Cd * params.W * math.sqrt(2.0 / params.rho)  # flow per (m of opening, sqrt Pa)
     p[D_VW] = 2.0 * math.pi * params.valve_wn_hz
     p[D_ULIM] = params.xv_max / p[D_KXV]  # the command that opens the ideal valve to its stroke (inf: none)
+    bad = [what for k, what in _DERIVED.items() if not math.isfinite(p[k])]
+    if bad:
+        raise ValueError(f"MillParams give a model coefficient beyond a float: {', '.join(bad)} (a value too large "
+                         "or too small for the plant's equations)")
     return p
+
+
+#: the derived coefficients that must be finite, as the error names them
+_DERIVED = {D_KQ: "Cd W sqrt(2/rho) Ksv Kp1", D_DPR2: "dp_reg^2", D_BA: "beta_e/Ap", D_W: "2 pi pulse_freq",
+            D_INVVS: "1/vs", D_FSC: "fs - fc", D_ABPB: "Ab pb", D_INVM: "1/mt", D_KXV: "Ksv Kp1",
+            D_KQX: "Cd W sqrt(2/rho)", D_VW: "2 pi valve_wn_hz"}
 
 
 @njit(cache=True, inline="always")

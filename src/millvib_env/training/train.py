@@ -255,7 +255,20 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = resolve_named_gains(dict(hp.pop("env_kwargs", None) or {}), the_task.name, env_version(env_id))
+    raw_kwargs = hp.pop("env_kwargs", None) or {}
+    if not isinstance(raw_kwargs, dict):
+        raise ValueError(f"env_kwargs = {raw_kwargs!r:.60} in the hyperparameters is invalid: a mapping")
+    # refused now, not when the finished agent is loaded: a card may not change the episode (AgentPolicy)
+    from millvib_env.control.agents import AGENT_ENV_KEYS
+
+    episode_keys = sorted(set(raw_kwargs) - AGENT_ENV_KEYS, key=repr)
+    if episode_keys:
+        raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
+                         f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
+    if "config" in raw_kwargs and raw_kwargs["config"] != the_task.config:
+        raise ValueError(f"env_kwargs config = {raw_kwargs['config']!r:.60} in the hyperparameters is not task "
+                         f"{the_task.name!r}'s ({the_task.config!r}): choose the task with --task")
+    env_kwargs = resolve_named_gains(dict(raw_kwargs), the_task.name, env_version(env_id))
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give
