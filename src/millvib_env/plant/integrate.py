@@ -184,6 +184,13 @@ def _real(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
+def _check_stroke(p_list, xs) -> None:
+    """Each start position within its cylinder's stroke (-L1, L - L1)."""
+    for p, x in zip(p_list, xs):
+        if not (-p.L1 < x < p.L - p.L1):
+            raise ValueError(f"x0 = {float(x)!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
+
+
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     if not _real(t_end) or not _real(dt_out):
         raise ValueError(f"t_end = {t_end!r} s and dt_out = {dt_out!r} s must be numbers (s)")
@@ -315,9 +322,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
     P = np.stack([pack(p) for p in p_list])
     if y0 is None:
-        for p, xx in zip(p_list, x0s):  # before the start's pressure balance divides by the chamber's length
-            if not (-p.L1 < xx < p.L - p.L1):
-                raise ValueError(f"x0 = {float(xx)!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
+        _check_stroke(p_list, x0s)  # before the start's pressure balance divides by the chamber's length
         Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
     else:
         Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))
@@ -326,9 +331,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         raise ValueError(f"change has {len(changes)} entries for {N} plants")
     C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on, pl_ref=float(y[IPL]), change=ch)
                   for g, y, ch in zip(g_list, Y0, changes)])
-    for p, y in zip(p_list, Y0):
-        if not (-p.L1 < y[IX] < p.L - p.L1):
-            raise ValueError(f"x0 = {y[IX]!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
+    _check_stroke(p_list, Y0[:, IX])
     p_max = P_MAX_FACTOR * max(p.ps for p in p_list)
     max_steps = int(MAX_STEPS_PER_SECOND * max(t_end, 1e-3)) + 1000
 

@@ -103,6 +103,25 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     return FixedPlantsEval(eval_env, **kwargs)
 
 
+def _agent_env_kwargs(raw, task) -> dict:
+    """The hyperparameters' env_kwargs, refused now (not when the finished agent is loaded) where a card could
+    not carry them: not a mapping, a key that changes the episode (`control.agents.AGENT_ENV_KEYS`), another
+    task's config."""
+    from millvib_env.control.agents import AGENT_ENV_KEYS
+
+    raw = raw or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"env_kwargs = {raw!r:.60} in the hyperparameters is invalid: a mapping")
+    episode_keys = sorted(set(raw) - AGENT_ENV_KEYS, key=repr)
+    if episode_keys:
+        raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
+                         f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
+    if "config" in raw and raw["config"] != task.config:
+        raise ValueError(f"env_kwargs config = {raw['config']!r:.60} in the hyperparameters is not task "
+                         f"{task.name!r}'s ({task.config!r}): choose the task with --task")
+    return dict(raw)
+
+
 def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
     """True where the zero action is a controller (a relative gain action's base, a residual's PID)."""
     acts = env_kwargs.get("actions") or {}
@@ -255,20 +274,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    raw_kwargs = hp.pop("env_kwargs", None) or {}
-    if not isinstance(raw_kwargs, dict):
-        raise ValueError(f"env_kwargs = {raw_kwargs!r:.60} in the hyperparameters is invalid: a mapping")
-    # refused now, not when the finished agent is loaded: a card may not change the episode (AgentPolicy)
-    from millvib_env.control.agents import AGENT_ENV_KEYS
-
-    episode_keys = sorted(set(raw_kwargs) - AGENT_ENV_KEYS, key=repr)
-    if episode_keys:
-        raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
-                         f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
-    if "config" in raw_kwargs and raw_kwargs["config"] != the_task.config:
-        raise ValueError(f"env_kwargs config = {raw_kwargs['config']!r:.60} in the hyperparameters is not task "
-                         f"{the_task.name!r}'s ({the_task.config!r}): choose the task with --task")
-    env_kwargs = resolve_named_gains(dict(raw_kwargs), the_task.name, env_version(env_id))
+    env_kwargs = resolve_named_gains(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task.name,
+                                     env_version(env_id))
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
     torch.set_num_threads(1)  # small networks: threads cost more than they give
