@@ -173,3 +173,30 @@ def test_v1_episodes_are_reproducible_and_sensor_noise_reaches_the_controller():
     assert np.array_equal(a, b)
     quiet = run(120005, loop={"sensors": {"position_noise_m": 0.0, "pressure_noise_pa": 0.0, "force_noise_n": 0.0}})
     assert not np.array_equal(a, quiet)  # the controller's command moves with its sensors' noise
+
+
+def test_the_current_loop_sample_is_the_reading_the_controller_takes_with_the_action():
+    """observation.loop_sample "current" shows the readings of the sample the agent's action joins: bit for bit
+    what "previous" shows one step later (the controller's reading at that sample), in one environment and in
+    the batch, while the plant's trajectory is the same bytes whichever the observation carries."""
+    import gymnasium as gym
+
+    kw = {"config": "rolling", "residual": True}
+    actions = np.random.default_rng(0).uniform(-0.3, 0.3, (40, 1)).astype(np.float32)
+    seen, states = {}, {}
+    for sample in ("previous", "current"):
+        env = gym.make("MillVib-Valve-v1", **kw, observation={"force": True, "loop_sample": sample})
+        obs = [env.reset(seed=120004)[0]]
+        obs += [env.step(a)[0] for a in actions]
+        seen[sample], states[sample] = np.array(obs), env.unwrapped.core.Y.copy()
+        names = env.unwrapped.core.obs_names
+    np.testing.assert_array_equal(states["previous"], states["current"])
+    measured = [names.index(nm) for nm in ("error", "velocity", "pressure", "pid_command", "load_force")]
+    np.testing.assert_array_equal(seen["current"][:-1, measured], seen["previous"][1:, measured])
+    assert not np.array_equal(seen["current"][:, measured], seen["previous"][:, measured])
+    batch = EpisodeBatch("MillVib-Valve-v1", 2, **kw, observation={"force": True, "loop_sample": "current"})
+    out = [batch.reset([120004, 120005])[0]]
+    out += [batch.step(np.repeat(a[None], 2, axis=0))[0][0] for a in actions]
+    np.testing.assert_array_equal(np.array(out), seen["current"])
+    with pytest.raises(ValueError, match="loop_sample"):
+        gym.make("MillVib-Valve-v1", **kw, observation={"loop_sample": "next"})

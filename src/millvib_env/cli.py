@@ -236,7 +236,7 @@ def _cmd_distill(args) -> int:
     card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
-                   command="millvib " + " ".join(sys.argv[1:]))
+                   loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]))
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
         print(f"updated {write_manifest()}")
@@ -401,6 +401,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
                    help="the student also reads the measured channels as they were K loop samples ago, for each K "
                         "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
+    p.add_argument("--loop-sample", choices=("current", "previous"), default="current",
+                   help="the loop's sample the student reads (observation.loop_sample): 'current', the one its "
+                        "action joins at the controller (default), or 'previous', one sample older (the agents "
+                        "distilled before this option)")
     p.add_argument("--save-dir", required=True, metavar="DIR",
                    help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

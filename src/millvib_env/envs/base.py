@@ -248,6 +248,11 @@ class ValveEnv(MillVibEnv):
     measured channels (error, velocity, acceleration, pressure, last action, PID command, load force,
     those present) as they were k steps ago, appended last (names ``<channel>_lag_<k>``; an episode's
     first observation fills the steps before it).
+    On the sampled loop (v1), ``observation.loop_sample`` says which of the controller's samples the
+    position, velocity, pressure, PID command and force channels carry: ``"previous"`` (the default)
+    the one it took at the period's start, one sample older than the one the action is added to;
+    ``"current"`` the one it takes at the period's end, together with the action (as one program on
+    the mill's controller reads its inputs once for both). The plant's course is the same either way.
 
     ## Rewards
 

@@ -108,6 +108,11 @@ class ObservationSettings:
     #: a history: the measured channels (`observation.HISTORY_CHANNELS`) as they were this many agent steps
     #: ago (what a recurrent controller would remember); empty: none
     history_samples: tuple = ()
+    #: the sampled loop's readings (v1) the observation carries: "previous", the sample the controller took at
+    #: the period's start (one sample older than the one the agent's action is added to), or "current", the
+    #: sample it takes at the period's end, which it reads together with the agent's next action (as one
+    #: program on the mill's controller would); v0 observes the period's end whichever is set
+    loop_sample: str = "previous"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "preview_samples", tuple(int(k) for k in self.preview_samples))
@@ -257,6 +262,9 @@ def _preview(path: str, value: Any) -> list:
     """Look-aheads in control samples, each in [1, MAX_PREVIEW_SAMPLES]."""
     return _increasing(path, value, MAX_PREVIEW_SAMPLES, 32)
 
+
+#: what `observation.loop_sample` may say (`ObservationSettings.loop_sample`)
+LOOP_SAMPLES = ("previous", "current")
 
 #: the oldest history an observation may carry (agent steps)
 MAX_HISTORY_SAMPLES = 256
@@ -506,7 +514,9 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
             pp, vv, lo=1.0, hi=9.0, lo_open=True)},
         required=("x_max_m", "p_min_pa", "p_max_factor")),
     "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool,
-                                                "preview_samples": _preview, "history_samples": _history}),
+                                                "preview_samples": _preview, "history_samples": _history,
+                                                "loop_sample": lambda pp, vv: vv in LOOP_SAMPLES or _fail(
+                                                    pp, vv, f"one of {list(LOOP_SAMPLES)}")}),
 }
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",

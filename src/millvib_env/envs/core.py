@@ -31,7 +31,7 @@ from millvib_env.envs.reward import Reward
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.loop import kernel as loop_kernel
-from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS
+from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS, peek_samples
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import (A_ACC, A_QL, A_U, A_XV, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID,
@@ -77,6 +77,10 @@ class MillVibCore:
         #: the sampled loop (v1: a digital controller at the control rate, sensors in the loop), or None for
         #: the paper's analog loop inside the plant (v0)
         self.loop = config.loop
+        #: the loop's readings the observation carries: the sample the controller took at the period's start
+        #: ("previous", v1's default: one sample older than the one the agent's action joins) or the one it
+        #: takes at the period's end, with the agent's action ("current")
+        self.fresh = self.loop is not None and seen.loop_sample == "current"
         self.n_sub = int(round(self.period_s / config.control_dt_s))
         self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
         self.n_samp = self.n_sub * self.spp
@@ -235,8 +239,11 @@ class MillVibCore:
         if i == 0:
             self.history[0] = {"t": [0.0], "x": [np.array([ep.x0])], "v": [np.zeros(1)],
                                "gains": [self.gains[0].copy()], "u": [0.0]}
-        obs = self._observe(np.array([i]), e=np.array([profile.xd[0] - ep.x0]), v=np.zeros(1), a=np.zeros(1),
-                            pL=np.array([self.Y[i, IPL]]), u_pid=np.zeros(1))
+        if self.fresh:  # the first sample's readings, which the controller takes at t = 0 with the first action
+            obs = self._observe_sample(np.array([i]), a=np.zeros(1))
+        else:
+            obs = self._observe(np.array([i]), e=np.array([profile.xd[0] - ep.x0]), v=np.zeros(1), a=np.zeros(1),
+                                pL=np.array([self.Y[i, IPL]]), u_pid=np.zeros(1))
         info = {"params": self.current_params(i), "scenario": ep.scenario,
                 "disturbances": list(profile.events), "x0": ep.x0}
         return self.observer.start(i, obs[0]), info
@@ -319,6 +326,8 @@ class MillVibCore:
             u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
             obs = self._observe(np.arange(n), e=xd_step[:, -1] - last[:, IX], v=last[:, IV],
                                 a=self.AUXS[:, -1, A_ACC], pL=last[:, IPL], u_pid=u_pid)
+        elif self.fresh:
+            obs = self._observe_sample(np.arange(n), a=self.AUXS[:, -1, A_ACC])
         else:  # what the controller read at its last sample: the same sensors
             cs = self.CS
             obs = self._observe(np.arange(n), e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
@@ -353,7 +362,18 @@ class MillVibCore:
                 "u": self.AUXS[i, 1:, A_U].copy(), "ps": self.AUXS[i, 1:, A_PS].copy(), "xd": xd.copy(),
                 "FL": load}
 
-    def _observe(self, idx: np.ndarray, *, e, v, a, pL, u_pid) -> np.ndarray:
+    def _observe_sample(self, idx: np.ndarray, *, a) -> np.ndarray:
+        """Observations of environments `idx` from the readings the controller takes at its next sample
+        (`loop.kernel.peek_samples`: the same numbers, with the set-point, force step and noise of that sample)."""
+        col = self.k[idx] * self.n_sub
+        got = np.empty((len(idx), 5))
+        peek_samples(np.asarray(idx, np.int64), self.T, self.Y, self.C, self.CS, self.LS, self.XD[idx, col],
+                     self.DFL[idx, col], self.NOISE, col, got)
+        xm, vf, pm, fm, u_ctrl = got.T
+        return self._observe(idx, e=self.XD[idx, col] - xm, v=vf, a=a, pL=pm,
+                             u_pid=u_ctrl if self.residual else np.zeros(len(idx)), force=fm)
+
+    def _observe(self, idx: np.ndarray, *, e, v, a, pL, u_pid, force=None) -> np.ndarray:
         if self.mode == "gain":
             control = self.gain_map.action(self.gains[idx])
         else:
@@ -364,7 +384,8 @@ class MillVibCore:
         return self.observer.build(idx, self.noise_rng, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
                                    u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
-                                   params=params, force=self._observed_force(idx) if self.observe_force else None,
+                                   params=params, force=(self._observed_force(idx) if force is None else force)
+                                   if self.observe_force else None,
                                    preview=self.preview(idx) if self.observer.preview_samples else None)
 
     def preview(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

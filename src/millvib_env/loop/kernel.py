@@ -33,7 +33,8 @@ from millvib_env.plant.model import (C_DFL, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI,
                                      C_UEXT, C_XD, IPL, IX, NY, P_UMAX, plant_rhs)
 from millvib_env.loop.settings import LS_FIELDS
 
-__all__ = ["CS_NAMES", "NCS", "controller_sample", "plant_drive", "advance_loop_batch", "start_state"]
+__all__ = ["CS_NAMES", "NCS", "read_sensors", "pid_law", "controller_sample", "peek_samples", "plant_drive",
+           "advance_loop_batch", "start_state"]
 
 #: the digital controller's state and the episode's command statistics, per environment
 CS_NAMES = ("uI", "x_prev", "v_filt", "p_filt", "f_filt", "u_pending", "u_applied", "x_meas", "p_meas", "f_meas",
@@ -74,11 +75,10 @@ def plant_drive(c, u):
 
 
 @njit(cache=True)
-def controller_sample(t, y, p, c, cs, ls, xd, dfl, noise):
-    """One sample of the digital controller at time t (see the module docstring); returns the command
-    to hold from now to the next sample (V)."""
+def read_sensors(t, y, c, cs, ls, xd, dfl, noise):
+    """Step 1 of a sample at time t: the sensors' readings (and the derivative's filter) into cs; returns the
+    position error xd - x_m."""
     dt = ls[L_DT]
-    # 1. sensors
     xm = y[IX] + ls[L_XN] * noise[0]
     if ls[L_XRES] > 0.0:
         xm = ls[L_XRES] * math.floor(xm / ls[L_XRES] + 0.5)
@@ -92,15 +92,32 @@ def controller_sample(t, y, p, c, cs, ls, xd, dfl, noise):
     cs[K_VF] += ls[L_AD] * ((xm - cs[K_XPREV]) / dt - cs[K_VF])
     cs[K_XPREV] = xm
     cs[K_XM], cs[K_PM], cs[K_FM] = xm, pm, fm
-    # 2. the control law, saturation, conditional integration
-    e = xd - xm
+    return xd - xm
+
+
+@njit(cache=True)
+def pid_law(c, cs, e):
+    """The PID's command (V) on the readings in cs, its integral term as it stands (before this sample's
+    integration): KP e + uI - KD v_f - KPL (p_m - pL_ref) + KFF F_m; 0 with the PID off."""
     u_ctrl = 0.0
     if c[C_PID] != 0.0:
         u_ctrl = c[C_KP] * e + cs[K_UI] - c[C_KD] * cs[K_VF]
         if c[C_KPL] != 0.0:
-            u_ctrl -= c[C_KPL] * (pm - c[C_PLREF])
+            u_ctrl -= c[C_KPL] * (cs[K_PM] - c[C_PLREF])
         if c[C_KFF] != 0.0:
-            u_ctrl += c[C_KFF] * fm
+            u_ctrl += c[C_KFF] * cs[K_FM]
+    return u_ctrl
+
+
+@njit(cache=True)
+def controller_sample(t, y, p, c, cs, ls, xd, dfl, noise):
+    """One sample of the digital controller at time t (see the module docstring); returns the command
+    to hold from now to the next sample (V)."""
+    dt = ls[L_DT]
+    # 1. sensors
+    e = read_sensors(t, y, c, cs, ls, xd, dfl, noise)
+    # 2. the control law, saturation, conditional integration
+    u_ctrl = pid_law(c, cs, e)
     cs[K_UCTRL] = u_ctrl
     u_req = u_ctrl + c[C_UEXT]
     umax = p[P_UMAX]
@@ -122,6 +139,20 @@ def controller_sample(t, y, p, c, cs, ls, xd, dfl, noise):
     cs[K_UMAX] = max(cs[K_UMAX], abs(out))
     cs[K_UREQMAX] = max(cs[K_UREQMAX], abs(u_req))
     return out
+
+
+@njit(cache=True)
+def peek_samples(idx, T, Y, C, CS, LS, xd, dfl, NOISE, k, out):
+    """The readings the controller will take at its next sample, without taking them: for environments
+    idx[i], at time T, state Y, set-point xd[i], force step dfl[i] and noise row k[i], out[i] = (x_m, v_f,
+    p_m, F_m, the PID's command). `read_sensors` and `pid_law` on a copy of the controller's state: the
+    same numbers, bit for bit, as the sample that follows reads (an observation taken at the sample)."""
+    for i in range(idx.shape[0]):
+        b = idx[i]
+        cs = CS[b].copy()
+        e = read_sensors(T[b], Y[b], C[b], cs, LS, xd[i], dfl[i], NOISE[b, k[i]])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = cs[K_XM], cs[K_VF], cs[K_PM], cs[K_FM]
+        out[i, 4] = pid_law(C[b], cs, e)
 
 
 @njit(cache=True)

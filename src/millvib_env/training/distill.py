@@ -35,21 +35,26 @@ import numpy as np
 from millvib_env._paths import write_text_atomic
 from millvib_env.tasks import get_task
 
-__all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "student_env_kwargs"]
+__all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
 
 #: the preview's look-aheads (control samples: 0.5-20 ms at 2 kHz)
 DEFAULT_PREVIEW = (1, 2, 4, 8, 16, 24, 32, 40)
 #: the measured channels' history the student reads (control samples: 0.5-16 ms before)
 DEFAULT_HISTORY = (1, 2, 4, 8, 16, 32)
+#: the loop's sample the student reads (`observation.loop_sample`): the one its action is added to
+DEFAULT_LOOP_SAMPLE = "current"
 
 
 def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0,
-                       history=()) -> dict:
-    """The student's environment: a residual of +-`range_v` on `base`, the load cells, the preview and (where
-    `history` names lags) the measured channels' history."""
+                       history=(), loop_sample: str = "previous") -> dict:
+    """The student's environment: a residual of +-`range_v` on `base`, the load cells, the preview, (where
+    `history` names lags) the measured channels' history, and the loop's sample it reads
+    (`observation.loop_sample`)."""
     seen = {"force": True, "preview_samples": list(preview)}
     if history:
         seen["history_samples"] = list(history)
+    if loop_sample != "previous":
+        seen["loop_sample"] = loop_sample
     return {"residual": True, "reward": {"w_vibration": 1.0, "w_effort": 0.0}, "observation": seen,
             "actions": {"residual_gains": base, "residual_range_v": float(range_v)}}
 
@@ -124,7 +129,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
             iterations: int = 4,
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
             net: tuple = (256, 256), range_v: float = 20.0, history=DEFAULT_HISTORY,
-            progress: bool = True, command: str | None = None) -> dict:
+            loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
     import torch
@@ -151,7 +156,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
 
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     net = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
-    kwargs = student_env_kwargs(preview, range_v=range_v, history=history)
+    kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample)
     teacher_ctrl = load_controller(teacher, t.name, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
