@@ -40,6 +40,28 @@ def test_a_previous_result_of_the_same_command_is_replaced_but_not_once_a_user_a
         check_result_folder(out.parent / "results", "--out", "sweep")  # another command's result
 
 
+def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys, monkeypatch):
+    """An OS fault while the result is written (here ENOSPC at the final rename) is one line, exit 1, no
+    traceback, and the previous result is still there whole."""
+    import errno
+
+    out = tmp_path / "results"
+    assert cli_main(QUICK + ["--out", str(out)]) == 0
+    before = (out / "benchmark.json").read_bytes()
+    capsys.readouterr()
+
+    def full(src, dst):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(dst))
+
+    monkeypatch.setattr(os, "replace", full)
+    monkeypatch.setattr(os, "rename", full)
+    assert cli_main(QUICK + ["--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left on device" in err[0] and "Traceback" not in err[0], err
+    monkeypatch.undo()
+    assert (out / "benchmark.json").read_bytes() == before
+
+
 @pytest.mark.parametrize("json_at", ["inside", "same"])
 def test_another_output_of_the_run_inside_the_result_folder_is_refused(tmp_path, capsys, json_at):
     out = tmp_path / "D"

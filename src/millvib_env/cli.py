@@ -396,8 +396,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
     p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
                    help="the student's hidden layers (default 256 256)")
-    p.add_argument("--range-v", type=float, default=20.0,
-                   help="the residual's range in volts: action 1 adds this to the PID's command (default 20)")
+    p.add_argument("--range-v", type=float, default=100.0,
+                   help="the residual's range in volts: action 1 adds this to the PID's command (default 100: "
+                        "enough to move the plant ahead of a step against the PID, which pulls back at 1.3 V per "
+                        "um; the amplifier still limits the sum to +-10 V)")
     p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
                    help="the student also reads the measured channels as they were K loop samples ago, for each K "
                         "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
@@ -460,6 +462,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"millvib {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as err:  # the machine's fault, not the input's (a full disk, a read-only folder): one line, 1
+        where = f": {err.filename}" if err.filename else ""
+        print(f"millvib {args.command}: error: {err.strerror or err}{where}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
