@@ -62,6 +62,20 @@ def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys,
     assert (out / "benchmark.json").read_bytes() == before
 
 
+def test_a_failing_job_stops_the_other_workers_instead_of_waiting_for_them(tmp_path):
+    """A job's error (as Ctrl-C or SIGTERM would) ends a local pool at once: the other workers are stopped,
+    their jobs never finish, and no worker outlives the call."""
+    import multiprocessing as mp
+
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import fail_or_finish_late
+
+    with pytest.raises(ValueError, match="job 0 failed"):
+        run_jobs(fail_or_finish_late, [{"i": i, "folder": str(tmp_path)} for i in range(3)], processes=2)
+    assert not [p for p in mp.active_children() if p.is_alive()]
+    assert not list(tmp_path.glob("finished-*"))
+
+
 @pytest.mark.parametrize("json_at", ["inside", "same"])
 def test_another_output_of_the_run_inside_the_result_folder_is_refused(tmp_path, capsys, json_at):
     out = tmp_path / "D"

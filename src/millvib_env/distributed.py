@@ -69,6 +69,37 @@ def _call(fn: Callable, kwargs: dict) -> Any:
     return fn(**kwargs)
 
 
+def _quiet_worker() -> None:
+    """A worker leaves Ctrl-C to its parent, which stops every worker and says so in one line."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_pool(fn: Callable, jobs: list, processes: int, bar) -> list:
+    """The jobs in spawned worker processes. Whatever ends the run early (a job's error, Ctrl-C, SIGTERM)
+    stops the other workers at once instead of waiting for their jobs, then goes on up."""
+    pool = cf.ProcessPoolExecutor(max_workers=min(processes, len(jobs)), mp_context=mp.get_context("spawn"),
+                                  initializer=_quiet_worker)
+    try:
+        futures = [pool.submit(_call, fn, job) for job in jobs]
+        for done in cf.as_completed(futures):
+            done.result()  # a job's error ends the run now, not after the others
+            if bar is not None:
+                bar.update(1)
+        out = [f.result() for f in futures]
+    except BaseException:
+        workers = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:
+            proc.terminate()
+        for proc in workers:
+            proc.join(timeout=5)
+        raise
+    pool.shutdown()
+    return out
+
+
 def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, processes: int = 1,
              num_cpus: float = 1.0, progress: bool = False, desc: str = "jobs") -> list:
     """`[fn(**job) for job in jobs]`, locally or on Ray (module docstring). `fn` must be importable
@@ -96,12 +127,7 @@ def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, proc
                 if bar is not None:
                     bar.update(1)
             return out
-        with cf.ProcessPoolExecutor(max_workers=min(processes, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(_call, fn, job) for job in jobs]
-            for _done in cf.as_completed(futures):
-                if bar is not None:
-                    bar.update(1)
-            return [f.result() for f in futures]
+        return _run_pool(fn, jobs, processes, bar)
     finally:
         if bar is not None:
             bar.close()
