@@ -114,6 +114,32 @@ def test_debris_of_a_killed_write_is_removed_and_a_live_writers_is_kept(tmp_path
     assert not dead.exists() and live.exists()
 
 
+def test_a_writer_that_finishes_while_another_swaps_in_is_moved_aside_not_an_error(tmp_path, monkeypatch):
+    """Two writers of one folder: the other one's result lands at the path between this one's two renames
+    (ENOTEMPTY for a plain rename). It is moved aside in turn; the path holds this writer's files, whole,
+    and nothing is left beside it."""
+    real_replace = os.replace
+    path = tmp_path / "out"
+    path.mkdir()
+    (path / "first.txt").write_text("the first result")
+    raced = []
+
+    def racing_replace(src, dst):
+        if str(src).endswith(".tmp") and not raced:  # the other writer finishes first
+            raced.append(True)
+            other = tmp_path / "other"
+            other.mkdir()
+            (other / "other.txt").write_text("the other writer's")
+            real_replace(other, dst)
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", racing_replace)
+    with atomic_folder(path) as tmp:
+        (tmp / "mine.txt").write_text("mine")
+    assert raced and sorted(p.name for p in path.iterdir()) == ["mine.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
 def test_a_run_killed_between_the_two_renames_gets_its_old_result_back(tmp_path):
     out = tmp_path / "results"
     old = tmp_path / ".results.killed.old"

@@ -197,17 +197,43 @@ def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False,
             entries = sorted(e.name for e in tmp.iterdir() if e.name != RESULT_MARKER)
             (tmp / RESULT_MARKER).write_text(json.dumps({"command": command, "entries": entries}, indent=1))
         os.chmod(tmp, 0o777 & ~_umask())
-        old = None
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            (old / _OWNER).write_text(str(os.getpid()))
-            os.replace(path, old / "x")
-        os.replace(tmp, path)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        olds = []
+        try:
+            _swap_in(tmp, path, olds)
+        finally:
+            for old in olds:
+                shutil.rmtree(old, ignore_errors=True)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+#: how often a finished result tries to take its place while other writers of the same folder finish too
+_SWAP_TRIES = 20
+
+
+def _swap_in(tmp: Path, path: Path, olds: list) -> None:
+    """Put folder `tmp` in place of `path`: what is there is moved aside into a fresh folder (appended to
+    `olds`, for the caller to remove), then `tmp` renamed to `path`. Another writer that finishes between
+    the two renames (its folder now at `path`: ENOTEMPTY) is moved aside in turn, up to `_SWAP_TRIES` times:
+    the last writer to finish wins, whole."""
+    import errno
+
+    for attempt in range(_SWAP_TRIES):
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            olds.append(old)
+            (old / _OWNER).write_text(str(os.getpid()))
+            try:
+                os.replace(path, old / "x")
+            except FileNotFoundError:  # another writer moved it aside first
+                pass
+        try:
+            os.replace(tmp, path)
+            return
+        except OSError as err:
+            if err.errno not in (errno.ENOTEMPTY, errno.EEXIST) or attempt == _SWAP_TRIES - 1:
+                raise
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
