@@ -362,16 +362,23 @@ class MillVibCore:
                 "u": self.AUXS[i, 1:, A_U].copy(), "ps": self.AUXS[i, 1:, A_PS].copy(), "xd": xd.copy(),
                 "FL": load}
 
-    def _observe_sample(self, idx: np.ndarray, *, a) -> np.ndarray:
-        """Observations of environments `idx` from the readings the controller takes at its next sample
-        (`loop.kernel.peek_samples`: the same numbers, with the set-point, force step and noise of that sample)."""
+    def next_sample(self, idx: np.ndarray) -> np.ndarray:
+        """The readings the digital controller of environments `idx` takes at its next sample, before it takes
+        them (`loop.kernel.peek_samples`: the same numbers, with that sample's set-point, force step and noise):
+        rows (x_m, v_f, p_m, F_m, the PID's command in V), one per environment (v1 only)."""
+        idx = np.asarray(idx, np.int64)
         col = self.k[idx] * self.n_sub
         got = np.empty((len(idx), 5))
-        peek_samples(np.asarray(idx, np.int64), self.T, self.Y, self.C, self.CS, self.LS, self.XD[idx, col],
-                     self.DFL[idx, col], self.NOISE, col, got)
-        xm, vf, pm, fm, u_ctrl = got.T
-        return self._observe(idx, e=self.XD[idx, col] - xm, v=vf, a=a, pL=pm,
-                             u_pid=u_ctrl if self.residual else np.zeros(len(idx)), force=fm)
+        peek_samples(idx, self.T, self.Y, self.C, self.CS, self.LS, self.XD[idx, col], self.DFL[idx, col],
+                     self.NOISE, col, got)
+        return got
+
+    def _observe_sample(self, idx: np.ndarray, *, a) -> np.ndarray:
+        """Observations of environments `idx` from the readings the controller takes at its next sample."""
+        xm, vf, pm, fm, u_ctrl = self.next_sample(idx).T
+        xd = self.XD[idx, self.k[idx] * self.n_sub]
+        return self._observe(idx, e=xd - xm, v=vf, a=a, pL=pm, u_pid=u_ctrl if self.residual else np.zeros(len(idx)),
+                             force=fm)
 
     def _observe(self, idx: np.ndarray, *, e, v, a, pL, u_pid, force=None) -> np.ndarray:
         if self.mode == "gain":

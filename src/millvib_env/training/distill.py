@@ -128,7 +128,7 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> 
 def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
             iterations: int = 4,
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
-            net: tuple = (256, 256), range_v: float = 20.0, history=DEFAULT_HISTORY,
+            net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
