@@ -28,6 +28,7 @@ commands:
   benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
   headroom    the room to learn on a task: the classical controllers against the MPC bounds (v1)
   distill     teach a residual valve policy with a preview by the MPC oracle (v1)
+  export      a trained agent as an ONNX graph for a controller outside Python, checked against it
   sweep       controllers over many plants with wide parameter ranges (local processes or Ray)
 
 examples:
@@ -223,6 +224,18 @@ def _cmd_tune(args) -> int:
     return tune_from_cli(args)
 
 
+def _cmd_export(args) -> int:
+    from millvib_env._paths import check_output
+    from millvib_env.control.export import export_agent
+
+    check_output(args.out, "--out")
+    summary = export_agent(args.agent, args.out, seed=args.seed, check_steps=args.check_steps,
+                           latency_calls=args.latency_calls)
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {args.out}")
+    return 0
+
+
 def _cmd_distill(args) -> int:
     import sys
 
@@ -381,6 +394,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_tune)
 
     from millvib_env.training.distill import __doc__ as distill_doc
+
+    from millvib_env.control.export import __doc__ as export_doc
+
+    p = sub.add_parser("export", help="a trained agent as an ONNX graph, checked against the agent",
+                       description=export_doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("agent", help="a shipped agent's name (millvib benchmark lists them) or an agent folder")
+    p.add_argument("--seed", type=int, default=None, help="the training seed of a multi-seed agent (default: "
+                                                          "its lowest)")
+    p.add_argument("--out", required=True, metavar="FILE", help="the .onnx file to write")
+    p.add_argument("--check-steps", type=int, default=400,
+                   help="observations of one of the task's episodes on which the graph must act as the agent "
+                        "(default 400)")
+    p.add_argument("--latency-calls", type=int, default=2000,
+                   help="calls timed at batch 1 for the figure printed (default 2000; 0: none)")
+    p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
                        description=distill_doc, formatter_class=argparse.RawDescriptionHelpFormatter)
