@@ -330,3 +330,36 @@ def test_the_period_summary_is_the_libraries_arithmetic(n_samp, spp):
     for size in (1, 7, 8, 9, 127, 128, 129, 1000, 5001):
         a = rng.uniform(0, 1, size)
         assert pairwise_sum(a, size) == pytest.approx(np.sum(a), rel=1e-14)
+
+
+def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs():
+    """gym.make_vec(id, n, vectorization_mode="vector_entry_point") is the batched engine behind Gymnasium's
+    VectorEnv: step for step (through two episode ends) the same observations, rewards, ends, final observations
+    and infos as SyncVectorEnv over n single environments in the same-step auto-reset mode."""
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    n, kw = 3, {"config": "startup"}
+    fast = gym.make_vec("MillVib-GainSchedule-v1", n, vectorization_mode="vector_entry_point", **kw)
+    slow = gym.make_vec("MillVib-GainSchedule-v1", n, vectorization_mode="sync",
+                        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}, **kw)
+    assert fast.single_action_space == slow.single_action_space and fast.observation_space == slow.observation_space
+    (o1, i1), (o2, i2) = fast.reset(seed=7), slow.reset(seed=7)
+    np.testing.assert_array_equal(o1, o2)
+    assert sorted(i1) == sorted(i2)
+    rng, ends = np.random.default_rng(0), 0
+    for _ in range(101):
+        a = rng.uniform(-1, 1, fast.action_space.shape).astype(np.float32)
+        got, want = fast.step(a), slow.step(a)
+        for x, y in zip(got[:4], want[:4]):
+            np.testing.assert_array_equal(x, y)
+        assert sorted(got[4]) == sorted(want[4])
+        np.testing.assert_array_equal(got[4]["params"]["c1"], want[4]["params"]["c1"])
+        if "final_obs" in got[4]:
+            ends += 1
+            done = got[4]["_final_obs"]
+            np.testing.assert_array_equal(done, want[4]["_final_obs"])
+            np.testing.assert_array_equal(np.stack(got[4]["final_obs"][done]), np.stack(want[4]["final_obs"][done]))
+    assert ends == 2
+    with pytest.raises(ValueError, match="seed"):
+        fast.reset(seed=[1, 2])

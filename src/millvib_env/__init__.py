@@ -22,12 +22,13 @@ def _register_envs() -> None:
     so no TimeLimit is registered: one would cut a 1 s `rolling` episode at the 0.5 s `startup` length."""
     import gymnasium
 
-    for name, entry in (("GainSchedule", "millvib_env.envs.base:GainScheduleEnv"),
-                        ("Valve", "millvib_env.envs.base:ValveEnv")):
+    for name in ("GainSchedule", "Valve"):
         for version in ("v0", "v1"):
             env_id = f"MillVib-{name}-{version}"
-            if env_id not in gymnasium.registry:
-                gymnasium.register(id=env_id, entry_point=entry, kwargs={"env_version": version})
+            if env_id not in gymnasium.registry:  # gym.make_vec(..., vectorization_mode="vector_entry_point"):
+                gymnasium.register(id=env_id, entry_point=f"millvib_env.envs.base:{name}Env",  # the batched engine
+                                   vector_entry_point=f"millvib_env.envs.vector:{name}VectorEnv",
+                                   kwargs={"env_version": version})
 
 
 _register_envs()

@@ -1,0 +1,87 @@
+"""Gymnasium's vector API on the batched engine: ``gym.make_vec(id, n, vectorization_mode="vector_entry_point")``.
+
+All N plants advance in one compiled call (`MillVibCore`), as in the SB3 `MillVibVecEnv`, behind Gymnasium's
+`VectorEnv` interface: batched spaces, ``reset(seed=s)`` seeding environment i with s + i (or a list of seeds),
+infos as dictionaries of arrays with their ``_key`` masks, and the same-step auto-reset
+(``AutoresetMode.SAME_STEP``): a finished environment returns its next episode's first observation, and its
+last one is in ``infos["final_obs"]`` (its last info in ``infos["final_info"]``). Step for step the same as
+``SyncVectorEnv`` over N single environments in that mode with the same seeds (`tests/test_envs.py`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from millvib_env._checks import seed_or_none
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.core import MillVibCore
+
+__all__ = ["MillVibVectorEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]
+
+
+class MillVibVectorEnv(VectorEnv):
+    """N MillVib environments of one mode and version, Gymnasium's vector API (module docstring)."""
+
+    mode = "gain"
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int = 1, *, config: str | dict | None = "startup", residual: bool = False,
+                 observe_params: bool | None = None, observe_phase: bool | None = None, env_version: str = "v0",
+                 render_mode: str | None = None, **overrides: Any):
+        if render_mode is not None:
+            raise ValueError(f"render_mode = {render_mode!r} is invalid for the vector environment: None (render "
+                             "one environment: gym.make)")
+        self.config = load_env_config(config, version=env_version, **overrides)
+        self.core = MillVibCore(num_envs, self.mode, self.config, residual=residual, observe_params=observe_params,
+                                observe_phase=observe_phase)
+        self.num_envs = self.core.n
+        self.single_observation_space = self.core.observation_space
+        self.single_action_space = self.core.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.render_mode = None
+
+    def _seeds(self, seed) -> list:
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, (list, tuple)):
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed has {len(seed)} entries; expected one per environment ({self.num_envs})")
+            return [seed_or_none(f"seed[{i}]", s) for i, s in enumerate(seed)]
+        seed = seed_or_none("seed", seed)
+        return [seed + i for i in range(self.num_envs)]
+
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None):
+        infos: dict = {}
+        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
+        for i, s in enumerate(self._seeds(seed)):
+            obs[i], info = self.core.reset_env(i, s, options)
+            infos = self._add_info(infos, info, i)
+        return obs, infos
+
+    def step(self, actions):
+        obs, reward, terminated, truncated, step_infos = self.core.step(actions)
+        infos: dict = {}
+        for i in range(self.num_envs):
+            info = step_infos[i]
+            if terminated[i] or truncated[i]:
+                infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": info}, i)
+                obs[i], info = self.core.reset_env(i)
+            infos = self._add_info(infos, info, i)
+        return obs, reward, terminated, truncated, infos
+
+
+class GainScheduleVectorEnv(MillVibVectorEnv):
+    """`MillVibVectorEnv` of the gain-schedule environment (`GainScheduleEnv`)."""
+
+    mode = "gain"
+
+
+class ValveVectorEnv(MillVibVectorEnv):
+    """`MillVibVectorEnv` of the valve environment (`ValveEnv`)."""
+
+    mode = "valve"
