@@ -11,6 +11,14 @@ from millvib_env._paths import agents_dir
 from millvib_env.control.agents import agent_seed_folders, list_agents
 
 
+def _shipped(selected: dict) -> str:
+    """Which policy a card ships: a training checkpoint (its steps; "start" for the starting policy) or a
+    distilled student's iteration."""
+    if "iteration" in selected:
+        return f"iteration {selected['iteration']}"
+    return "start" if selected["timesteps"] == 0 else f"{selected['timesteps'] / 1e6:g} M"
+
+
 def main() -> None:
     print("| agent | task | algorithm | env | seeds | steps per seed | shipped policy (per seed) | "
           "wall time per seed (min) | note |")
@@ -20,10 +28,12 @@ def main() -> None:
         walls = [c["wall_time_s"] / 60 for c in cards]
         steps = sorted({round(c["n_timesteps"] / 1e6, 2) for c in cards})
         notes = sorted({c["note"] for c in cards if c.get("note")})
-        shipped = ", ".join("start" if x["selected"]["timesteps"] == 0 else f"{x['selected']['timesteps'] / 1e6:g} M"
-                            for x in cards if x.get("selected")) or "last"
+        shipped = ", ".join(_shipped(x["selected"]) for x in cards if x.get("selected")) or "last"
         c = cards[0]
-        print(f"| {name} | {c.get('task', 'startup')} | {c['algo']} | {c['env_id'].replace('MillVib-', '')} | "
+        algo = "DAgger (distill)" if "iteration" in c.get("selected", {}) else c["algo"]
+        if not notes and c.get("trained_by"):
+            notes = [c["trained_by"]]
+        print(f"| {name} | {c.get('task', 'startup')} | {algo} | {c['env_id'].replace('MillVib-', '')} | "
               f"{', '.join(str(x['seed']) for x in cards)} | {', '.join(f'{s:g} M' for s in steps)} | {shipped} | "
               f"{min(walls):.1f}-{max(walls):.1f} | {' '.join(notes)} |")
 
