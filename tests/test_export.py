@@ -33,6 +33,9 @@ def test_the_exported_graph_acts_as_the_agent_on_observations_it_was_not_checked
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert json.loads(meta["millvib.observation"]) == list(venv.core.obs_names)
     assert meta["millvib.task"] == "startup" and "100.0" in meta["millvib.action"]
+    # a SAC agent's squashed mean and a gain schedule, checked the same way before it is written
+    assert export_agent("sac-gain-pf", tmp_path / "sac.onnx", check_steps=20, latency_calls=0)[
+        "max_abs_difference"] <= EXPORT_TOLERANCE
 
 
 def test_a_baseline_or_a_bad_path_is_refused_in_one_line(tmp_path, capsys):

@@ -66,8 +66,11 @@ def _deployed(agent):
                 x = torch.clamp(x, -self.clip, self.clip)
             if algo == "sac":
                 action = self.policy.actor(x, deterministic=True)
-            else:
-                action = self.policy(x, deterministic=True)[0]
+            else:  # PPO's deterministic action: the Gaussian's mean (no distribution object in the graph)
+                features = self.policy.extract_features(x, self.policy.pi_features_extractor)
+                action = self.policy.action_net(self.policy.mlp_extractor.forward_actor(features))
+                if self.policy.squash_output:
+                    action = torch.tanh(action)
             return torch.clamp(action, -1.0, 1.0)
 
     return Deployed().eval()
