@@ -14,10 +14,8 @@ import numpy as np
 from scipy.signal import welch
 
 from millvib_env.control.factory import load_controller
-from millvib_env.envs.batch import EpisodeBatch
-from millvib_env.plant.model import IX
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import env_kwargs_for
+from millvib_env.training.evaluate import trace_episode
 
 BANDS_HZ = ((0, 5), (5, 20), (20, 60), (60, 200), (200, 5000))
 
@@ -25,24 +23,8 @@ BANDS_HZ = ((0, 5), (5, 20), (20, 60), (60, 200), (200, 5000))
 def tracking_error(name: str, task: str, seeds: list[int]) -> tuple[np.ndarray, float]:
     """e = xd - x (um) of controller `name` on `seeds`, every plant sample (rows: episodes), and the sample rate."""
     ctrl = load_controller(name, task, version="v1")
-    venv = EpisodeBatch(ctrl.env_id, len(seeds), **env_kwargs_for(ctrl, task, None))
-    core = venv.core
-    if ctrl.reads_plant:
-        ctrl.attach(core)
-    obs = venv.reset(seeds)
-    ctrl.on_reset(venv.reset_infos, range(len(seeds)))
-    rows = np.arange(len(seeds))[:, None]
-    parts, state, start = [], None, np.ones(len(seeds), dtype=bool)
-    for _ in range(core.max_steps):
-        action, state = ctrl.predict(obs, state=state, episode_start=start, deterministic=True)
-        xd = core.XD[rows, core.k[:, None] * core.n_sub + np.arange(core.n_sub)]
-        obs, done, infos = venv.step(action)
-        start = done
-        ctrl.on_step(infos)
-        parts.append(np.repeat(xd, core.spp, axis=1) - core.YS[:, 1:, IX])
-        if done.all():
-            break
-    return np.concatenate(parts, axis=1) * 1e6, core.cfg.sample_rate_hz
+    runs = [trace_episode(ctrl, seed=s, task=task) for s in seeds]
+    return np.stack([(r["xd"] - r["x"])[1:] for r in runs]) * 1e6, 1.0 / (runs[0]["t"][1] - runs[0]["t"][0])
 
 
 def main() -> None:

@@ -156,8 +156,8 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
 
 def trace_episode(controller: Controller, *, scenario: str | None = None, seed: int = 0,
                   env_kwargs: dict | None = None, task: str | None = None) -> dict:
-    """One episode with every plant sample kept: t, x, v, a, u (10 kHz) and, in gain mode, the gains
-    of every agent step (empty for valve policies)."""
+    """One episode with every plant sample kept: t, x, v, a, u and the set-point xd (10 kHz) and, in gain
+    mode, the gains of every agent step (empty for valve policies)."""
     from millvib_env.plant.model import A_ACC, A_U, IV, IX
 
     instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
@@ -171,16 +171,18 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     controller.on_reset(venv.reset_infos, [0])
     core = venv.core
     parts: dict[str, list] = {"x": [core.Y[:1, IX].copy()], "v": [core.Y[:1, IV].copy()], "a": [np.zeros(1)],
-                              "u": [np.zeros(1)]}
+                              "u": [np.zeros(1)], "xd": [core.XD[0, :1].copy()]}
     gains, state, start = [], None, np.ones(1, dtype=bool)
     while True:
         action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
         if core.mode == "gain":
             gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0][:3])
+        xd = np.repeat(core.XD[0, core.k[0] * core.n_sub + np.arange(core.n_sub)], core.spp)  # before an auto-reset
         obs, done, infos = venv.step(action)
         start = done
         controller.on_step(infos)
         n = core.n_samp
+        parts["xd"].append(xd)
         parts["x"].append(core.YS[0, 1:n + 1, IX].copy())
         parts["v"].append(core.YS[0, 1:n + 1, IV].copy())
         parts["a"].append(core.AUXS[0, 1:n + 1, A_ACC].copy())
