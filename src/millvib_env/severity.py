@@ -316,7 +316,7 @@ def _load_severity_config() -> dict:
             raise _bad(f"zones.{name}.description", description, "a text")
         tables[name] = IsoZoneTable(str(name), tuple(float(v) for v in b), source, description)
     default = data.get("default_class")
-    if default not in tables:
+    if not isinstance(default, str) or default not in tables:
         raise _bad("default_class", default, f"one of the zones {sorted(tables)}")
     return {"band": (float(band[0]), float(band[1])), "default": default, "source": source, "tables": tables}
 
