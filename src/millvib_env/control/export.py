@@ -64,8 +64,8 @@ def _deployed(agent):
             x = (observation - self.mean) / self.scale
             if self.clip != float("inf"):
                 x = torch.clamp(x, -self.clip, self.clip)
-            if algo == "sac":
-                action = self.policy.actor(x, deterministic=True)
+            if algo == "sac":  # SAC's deterministic action: the squashed mean (no distribution object traced)
+                action = torch.tanh(self.policy.actor.get_action_dist_params(x)[0])
             else:  # PPO's deterministic action: the Gaussian's mean (no distribution object in the graph)
                 features = self.policy.extract_features(x, self.policy.pi_features_extractor)
                 action = self.policy.action_net(self.policy.mlp_extractor.forward_actor(features))
