@@ -1,6 +1,11 @@
 """Result folders never lose a user's data: what is refused, what is replaced, what is cleaned up."""
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -292,3 +297,85 @@ def test_damaged_normalisation_statistics_are_refused_not_run(tmp_path, key, val
     with pytest.raises(ValueError, match=key) as info:
         load_controller(str(folder))
     assert "vecnormalize.npz" in str(info.value) and "\n" not in str(info.value)
+
+
+def _millvib(*args: str, **popen) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-c", "import sys; from millvib_cli import main; sys.exit(main())",
+                             *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, **popen)
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(stat.parent.name))
+    return kids
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _assert_ended(workers: list[int]) -> None:
+    end = time.monotonic() + 30
+    while any(_alive(w) for w in workers):  # stopped by the parent before it left, or being reaped
+        assert time.monotonic() < end, f"workers {[w for w in workers if _alive(w)]} outlived the command"
+        time.sleep(0.02)
+
+
+def _wait_for(condition, proc, what: str, limit_s: float = 300.0) -> None:
+    end = time.monotonic() + limit_s
+    while not condition():
+        assert proc.poll() is None, f"the command ended before {what}"
+        assert time.monotonic() < end, f"no {what} within {limit_s} s"
+        time.sleep(0.02)
+
+
+def test_ctrl_c_while_the_package_loads_is_one_line_not_a_traceback():
+    """The launcher (`millvib_cli`) catches Ctrl-C before anything heavy loads: here it arrives while numpy
+    and the package import (raised by an import hook, so the moment is certain)."""
+    import subprocess
+    import sys
+
+    hook = ("import sys\n"
+            "class Interrupt:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'millvib_env.params': raise KeyboardInterrupt\n"
+            "sys.meta_path.insert(0, Interrupt())\n"
+            "from millvib_cli import main\n"
+            "sys.exit(main())\n")
+    run = subprocess.run([sys.executable, "-c", hook, "tasks"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 130
+    assert run.stderr.strip().splitlines() == ["millvib: interrupted while loading"]
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
+def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tmp_path):
+    """SIGTERM to a running command: one line, 143. Ctrl-C to the whole process group (what a terminal
+    sends) once the workers of `sweep --jobs 2` are up: one line, 130, no worker's traceback, no worker
+    left, and the result folder not written."""
+    long_sweep = ["sweep", "--controllers", "pid-nominal", "pid-paper", "--plants", "400", "--quiet"]
+    proc = _millvib(*long_sweep, "--jobs", "2", "--out", str(tmp_path / "a"))
+    _wait_for(lambda: len(_children(proc.pid)) >= 3, proc, "two workers")  # and the pool's resource tracker
+    workers = _children(proc.pid)
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 143 and err.strip().splitlines()[-1] == "millvib sweep: terminated", err
+    assert "Traceback" not in err
+    _assert_ended(workers)
+
+    proc = _millvib(*long_sweep, "--jobs", "2", "--out", str(tmp_path / "b"), start_new_session=True)
+    _wait_for(lambda: len(_children(proc.pid)) >= 3, proc, "two workers")
+    workers = _children(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 130 and err.strip().splitlines() == ["millvib sweep: interrupted"], err
+    _assert_ended(workers)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -462,39 +462,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, unwound as Ctrl-C is: the temporary result folders and worker processes are removed on the
+    way out, and the command says so in one line."""
+
+
+def _terminated(signum, frame):
+    raise Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one `millvib` command; the exit status is returned, never raised (`millvib_cli` exits with it)."""
+    import signal
+
+    try:
+        signal.signal(signal.SIGTERM, _terminated)
+    except ValueError:  # not the main thread (main() called from a worker)
+        pass
+    command = "millvib"
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
-    except KeyboardInterrupt:  # Ctrl-C while the command's modules load
-        print("millvib: interrupted", file=sys.stderr)
-        return 130
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 0
-    import signal
-
-    def _terminated(signum, frame):  # SIGTERM unwinds like Ctrl-C: temporary result folders are removed
-        raise SystemExit(128 + signum)
-
-    if hasattr(signal, "SIGTERM"):
-        try:
-            signal.signal(signal.SIGTERM, _terminated)
-        except ValueError:  # not the main thread (main() called from a worker)
-            pass
-    try:
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 0
+        command = f"millvib {args.command}"
         return int(args.func(args) or 0)
     except ValueError as err:
-        print(f"millvib {args.command}: error: {err}", file=sys.stderr)
+        print(f"{command}: error: {err}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"{command}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
-        print(f"millvib {args.command}: interrupted", file=sys.stderr)
+        print(f"{command}: interrupted", file=sys.stderr)
         return 130
     except OSError as err:  # the machine's fault, not the input's (a full disk, a read-only folder): one line, 1
         where = f": {err.filename}" if err.filename else ""
-        print(f"millvib {args.command}: error: {err.strerror or err}{where}", file=sys.stderr)
+        print(f"{command}: error: {err.strerror or err}{where}", file=sys.stderr)
         return 1
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -17,6 +17,8 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing as mp
 import os
+import signal
+import threading
 from typing import Any, Callable, Sequence
 
 __all__ = ["run_jobs", "ray_available"]
@@ -71,30 +73,42 @@ def _call(fn: Callable, kwargs: dict) -> Any:
 
 def _quiet_worker() -> None:
     """A worker leaves Ctrl-C to its parent, which stops every worker and says so in one line."""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _run_pool(fn: Callable, jobs: list, processes: int, bar) -> list:
     """The jobs in spawned worker processes. Whatever ends the run early (a job's error, Ctrl-C, SIGTERM)
-    stops the other workers at once instead of waiting for their jobs, then goes on up."""
-    pool = cf.ProcessPoolExecutor(max_workers=min(processes, len(jobs)), mp_context=mp.get_context("spawn"),
-                                  initializer=_quiet_worker)
+    stops the other workers at once instead of waiting for their jobs, then goes on up.
+
+    A terminal's Ctrl-C reaches the whole process group, and a worker still importing would print a
+    traceback. So the workers are spawned with Ctrl-C ignored, which they inherit through exec (a blocked
+    mask is not inherited by multiprocessing's spawn); a Ctrl-C in those few milliseconds is not seen."""
+    n_workers = min(processes, len(jobs))
+    main_thread = threading.current_thread() is threading.main_thread()
+    pool = None
     try:
-        futures = [pool.submit(_call, fn, job) for job in jobs]
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+        try:
+            pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_quiet_worker,
+                                          mp_context=mp.get_context("spawn"))  # not forked: numba's threads
+            futures = [pool.submit(_call, fn, job) for job in jobs[:n_workers]]  # each spawns its worker
+        finally:
+            if main_thread:
+                signal.signal(signal.SIGINT, previous)
+        futures += [pool.submit(_call, fn, job) for job in jobs[n_workers:]]
         for done in cf.as_completed(futures):
             done.result()  # a job's error ends the run now, not after the others
             if bar is not None:
                 bar.update(1)
         out = [f.result() for f in futures]
     except BaseException:
-        workers = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        for proc in workers:
-            proc.terminate()
-        for proc in workers:
-            proc.join(timeout=5)
+        if pool is not None:
+            workers = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for proc in workers:
+                proc.terminate()
+            for proc in workers:
+                proc.join(timeout=5)
         raise
     pool.shutdown()
     return out

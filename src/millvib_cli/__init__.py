@@ -1,0 +1,50 @@
+"""The `millvib` command's launcher, a package of its own so that nothing heavy loads before it.
+
+Importing `millvib_env` loads numpy, numba and Gymnasium (half a second idle, several seconds on a busy
+machine). A Ctrl-C or SIGTERM in that window would end in the interpreter's traceback if the command
+started inside the package. The launcher catches it first and says so in one line. After the command,
+an interrupted run leaves at once (`os._exit`, streams flushed, exit handlers run): its temporary result folders were
+removed while the exception unwound, and the interpreter's own shutdown (torch, numba) can take over a
+second on a busy machine. `millvib_env.cli.main` stays the API: it returns a status and never exits.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+
+INTERRUPTED, TERMINATED = 130, 143  # 128 + SIGINT, 128 + SIGTERM: what a shell reports for either
+
+
+def _leave(status: int) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe: nothing more can be said
+            pass
+    import atexit
+
+    try:  # what the run registered to do at exit (multiprocessing's clean-up, Ray's shutdown): milliseconds
+        atexit._run_exitfuncs()
+    except Exception:  # noqa: BLE001 (a handler's failure must not turn an interrupt into a traceback)
+        pass
+    os._exit(status)
+
+
+def main() -> int:
+    got = []
+
+    def _terminated(signum, frame):
+        got.append(signum)
+        raise KeyboardInterrupt
+
+    try:
+        signal.signal(signal.SIGTERM, _terminated)
+        from millvib_env.cli import main as run
+    except KeyboardInterrupt:
+        print(f"millvib: {'terminated' if got else 'interrupted'} while loading", file=sys.stderr)
+        _leave(TERMINATED if got else INTERRUPTED)
+    status = run()
+    if status in (INTERRUPTED, TERMINATED):
+        _leave(status)
+    return status
