@@ -104,7 +104,7 @@ def test_an_output_path_that_cannot_be_written_is_refused_before_the_work(argv, 
 # --- config files ---------------------------------------------------------------------------------
 DAMAGE = {"broken YAML": "a: [1, 2\n", "a !!python tag": "!!python/object/apply:os.system ['touch PWNED']\n",
           "a list": "- 1\n- 2\n", "not UTF-8": b"\xff\xfe\x00\x01", "nested too deeply": "[" * 5000 + "]" * 5000,
-          "a folder": None, "missing": "MISSING",
+          "a folder": None, "missing": "MISSING", "keys of mixed types": "{1: 2, zz: 3}\n",
           "aliases that expand": "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
               f"{n}: &{n} [{', '.join(['*' + p] * 9)}]\n" for p, n in zip("abcdefgh", "bcdefghi"))}
 #: file -> a command that reads it

@@ -55,13 +55,16 @@ def _cmd_simulate(args) -> int:
 
     check_output(args.plot, "--plot")
     check_output(args.csv, "--csv")
-    from millvib_env.analysis.dynamics import classify_motion
     from millvib_env.params import PIDGains, load_preset, parse_overrides
     from millvib_env.plant.integrate import simulate
+    from millvib_env.severity import severity_band
 
     params = load_preset(args.preset).replace(**parse_overrides(args.overrides))
     gains = PIDGains(args.kp, args.ki, args.kd)
+    severity_band()  # configs/severity.yaml, checked before the run
     run = simulate(params, gains, args.t_end, x0=args.x0, xd=args.xd, method=args.method)
+    from millvib_env.analysis.dynamics import classify_motion  # scipy.signal: after every input is checked
+
     motion = classify_motion(run)
     out = {"diverged": run.diverged, "status": run.status, "t_end_s": args.t_end, "method": args.method,
            "wall_s": run.info["wall_s"], "motion": motion.label}
@@ -207,6 +210,11 @@ def _cmd_tasks(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    from millvib_env.tasks import get_task
+    from millvib_env.training.hyperparams import load_hyperparams
+
+    get_task(args.task)
+    load_hyperparams(args.algo, args.env, args.config)  # the files, refused before torch and SB3 load (seconds)
     from millvib_env.training.train import train_from_cli
 
     return train_from_cli(args)

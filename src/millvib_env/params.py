@@ -178,7 +178,10 @@ class MillParams:
         if not isinstance(data, dict) or not isinstance(data.get("params", {}), dict):
             raise ValueError(f"plant preset {path} must map parameter names to numbers (optionally under "
                              "'params:'); `millvib params` lists them")
-        return cls.from_dict(data.get("params", data))
+        try:
+            return cls.from_dict(data.get("params", data))
+        except ValueError as err:
+            raise ValueError(f"plant preset {path}: {err}") from None
 
     @classmethod
     def describe(cls) -> list[tuple[str, float, str, str, str]]:

@@ -96,6 +96,45 @@ def read_card(path: str | Path) -> dict:
     return card
 
 
+def checked_card(folder: str | Path) -> dict:
+    """The card of an agent folder, checked as data before any learner library loads: `read_card`'s types,
+    the keys every card needs, the algorithm and backend, and env_kwargs that leave the episode alone."""
+    folder = Path(folder)
+    card_path = folder / "card.json"
+    if not card_path.exists():
+        raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
+    card = read_card(card_path)
+    if "env_id" not in card or "algo" not in card:
+        raise ValueError(f"{card_path} is not a valid model card: it needs at least 'algo' and 'env_id'")
+    env_kwargs = card.get("env_kwargs", {})
+    episode_keys = sorted(map(str, set(env_kwargs) - AGENT_ENV_KEYS))
+    if episode_keys:
+        raise ValueError(f"{card_path}: env_kwargs {episode_keys} would change the episode the agent meets (its "
+                         f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
+                         "every controller of a task meets the same plants")
+    if "config" in env_kwargs and env_kwargs["config"] != get_task(card.get("task", "startup")).config:
+        raise ValueError(f"{card_path}: env_kwargs config {env_kwargs['config']!r} is not its task's")
+    algo = str(card["algo"]).lower()
+    if algo not in ALGOS:
+        raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
+    if str(card.get("backend", "sb3")) not in BACKENDS:
+        raise ValueError(f"unknown backend {card.get('backend')!r} in {card_path}: one of {sorted(BACKENDS)}")
+    return card
+
+
+def check_agent(name: str) -> None:
+    """Every seed folder's card and observation statistics of agent `name`, checked as data before torch and
+    the learner libraries load (seconds), so a damaged file is refused at once (docs/guarantees.md)."""
+    from millvib_env.control.normalization import STATS_FILE, load_obs_stats
+
+    for folder in agent_seed_folders(agent_folder(name)).values():
+        card = checked_card(folder)
+        normalize = card.get("normalize", "None")
+        if isinstance(normalize, str) and normalize.strip().startswith(("{", "dict(")) and \
+                normalize.strip() != "{}":
+            load_obs_stats(folder / STATS_FILE)
+
+
 class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
@@ -104,30 +143,15 @@ class AgentPolicy(Controller):
 
         folder = Path(folder)
         card_path = folder / "card.json"
-        if not card_path.exists():
-            raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
         self.shipped = verify_agent(folder)
-        self.card = read_card(card_path)
-        if "env_id" not in self.card or "algo" not in self.card:
-            raise ValueError(f"{card_path} is not a valid model card: it needs at least 'algo' and 'env_id'")
+        self.card = checked_card(folder)
         self.name = self.card.get("name", folder.name)
         self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
         self.task = self.card.get("task", "startup")
         self.env_kwargs = dict(self.card.get("env_kwargs", {}))
-        episode_keys = sorted(set(self.env_kwargs) - AGENT_ENV_KEYS)
-        if episode_keys:
-            raise ValueError(f"{card_path}: env_kwargs {episode_keys} would change the episode the agent meets (its "
-                             f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
-                             "every controller of a task meets the same plants")
-        if "config" in self.env_kwargs and self.env_kwargs["config"] != get_task(self.task).config:
-            raise ValueError(f"{card_path}: env_kwargs config {self.env_kwargs['config']!r} is not its task's")
         algo = str(self.card["algo"]).lower()
-        if algo not in ALGOS:
-            raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
         self.backend = str(self.card.get("backend", "sb3"))
-        if self.backend not in BACKENDS:
-            raise ValueError(f"unknown backend {self.backend!r} in {card_path}: one of {sorted(BACKENDS)}")
         cls = algo_class(algo, self.backend)
         self.recurrent = algo == "recurrentppo"
         model_path = folder / "model.zip"

@@ -119,16 +119,20 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     return a summary (the file, its inputs, the largest difference, the time per call at batch 1)."""
     import io
 
+    from millvib_env._checks import integer
+    from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
+    from millvib_env.control.policies import baseline_names
+
+    check_steps = integer("check_steps", check_steps, lo=1, hi=100_000)
+    latency_calls = integer("latency_calls", latency_calls, lo=0, hi=1_000_000)
+    if name not in baseline_names() or name in list_agents():
+        check_agent(name)  # its files, before torch and onnx load
     import torch
 
-    from millvib_env._checks import integer
     from millvib_env._paths import atomic_path
-    from millvib_env.control.agents import AgentPolicy
     from millvib_env.control.factory import load_controller
 
     onnx, ort = _modules()
-    check_steps = integer("check_steps", check_steps, lo=1, hi=100_000)
-    latency_calls = integer("latency_calls", latency_calls, lo=0, hi=1_000_000)
     agent = load_controller(name, seed=seed, version="v1")
     if not isinstance(agent, AgentPolicy):
         raise ValueError(f"{name!r} is a baseline, not a trained agent: export takes an agent name or folder")

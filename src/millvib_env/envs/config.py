@@ -60,6 +60,10 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
         data = {}
     if not isinstance(data, dict):
         raise ValueError(f"environment config {path} must be a mapping of keys, not {type(data).__name__}")
+    unknown = set(data) - _TOP_KEYS - {"inherit"}
+    if unknown:
+        raise ValueError(f"environment config {path}: unknown key(s) {sorted(unknown, key=repr)}; known: "
+                         f"{sorted(_TOP_KEYS | {'inherit'})}")
     parent = data.pop("inherit", None)
     if parent is not None:
         if not isinstance(parent, str):

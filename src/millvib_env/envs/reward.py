@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal as ssig
 
 from millvib_env.envs.config import RewardSettings
 
@@ -42,6 +41,8 @@ class Reward:
         self.penalty = spec.terminal_penalty
         self.penalty_per_step = float(spec.terminal_per_step)
         self.ema_gain = 1.0 - math.exp(-period_s / spec.vib_time_constant_s)
+        from scipy import signal as ssig  # here, not at import: 1-2 s that a refused config should not wait for
+
         from millvib_env.severity import severity_band
 
         self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,

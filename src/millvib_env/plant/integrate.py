@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence, Union
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from millvib_env._checks import as_float, choice, instance, real, shown
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
@@ -379,6 +378,8 @@ def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress,
 
 
 def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
+    from scipy.integrate import solve_ivp  # here: over a second of imports that only the reference needs
+
     atol = options.get("atol", rtol * state_scale(params))
     extra = {"max_step": float(options["max_step"])} if "max_step" in options else {}
     lo, hi = -p[P_L1], p[P_L] - p[P_L1]

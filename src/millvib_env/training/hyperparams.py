@@ -67,7 +67,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         raise ValueError(f"hyperparameter file {path} not found")
     table = load_yaml(path, "hyperparameter file") or {}
     if not isinstance(table, dict) or env_id not in table or not isinstance(table[env_id], dict):
-        have = sorted(table) if isinstance(table, dict) else []
+        have = sorted(map(str, table)) if isinstance(table, dict) else []  # keys of any type
         raise ValueError(f"{path} has no entry for {env_id!r}; it has {have}")
     hp = {k: parse_zoo_value(v, f"{path} [{env_id}] {k}") for k, v in table[env_id].items()}
     for key in ("n_envs", "n_timesteps", "policy"):
