@@ -348,8 +348,8 @@ def _loaders():
 
 
 @pytest.mark.slow
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                  HealthCheck.function_scoped_fixture])
+@settings(max_examples=int(os.environ.get("MILLVIB_FUZZ_EXAMPLES", "60")), deadline=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_a_config_file_damaged_anywhere_is_read_whole_or_refused_in_one_line(data, damaged_configs):
     """Property: whatever one line of a shipped config file becomes (a value replaced by a non-finite, huge,

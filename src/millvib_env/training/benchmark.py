@@ -19,11 +19,13 @@ import csv
 import io
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from millvib_env._checks import strings
 from millvib_env._paths import save_figure, write_text_atomic
@@ -159,14 +161,14 @@ CHUNK = 50
 
 
 def _load_units(names: list[str], task: str, all_seeds: bool,
-                version: str) -> tuple[list[tuple[str, int | None]], dict]:
+                version: str, progress: bool = False) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
     from millvib_env.control.agents import agent_seeds
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
-    for n in names:
+    for n in tqdm(names, desc=f"benchmark {task}: loading", unit="controller", disable=not progress, leave=False):
         first = load_controller(n, task, version=version)
         if getattr(first, "card", None) is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
@@ -210,7 +212,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if reference not in names:
         load_controller(reference, t.name, version=env_version)  # an unknown name fails here, in one line
         names = [reference] + names
-    units, loaded = _load_units(names, t.name, all_seeds, env_version)
+    units, loaded = _load_units(names, t.name, all_seeds, env_version, progress)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     cfg = task_config(t.name, env_version)
@@ -229,13 +231,10 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
         for job, part in zip(jobs, parts):
             records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
     else:
-        iterator = units
-        if progress:
-            from tqdm.auto import tqdm
-            iterator = tqdm(units, desc=f"benchmark {t.name}", unit="run")
-        for unit in iterator:
+        for unit in tqdm(units, desc=f"benchmark {t.name}", unit="run", disable=not progress):
             records[unit] = _run(loaded[unit], plants, t.name)
-    for name in names:
+    for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
+                     unit="controller", disable=not progress, leave=False):
         recs = [r for (n, _), part in records.items() if n == name for r in part]
         first = loaded[next(u for u in units if u[0] == name)]
         summary = summarize(recs)
@@ -249,6 +248,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
                 sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
                                                    "cost")}
             result["scenarios"][name] = sc_recs
+    if progress:
+        print(f"benchmark {t.name}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result)
     result["room"] = room(result)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files

@@ -284,6 +284,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
                            else f"{algo}_{env_id}_{the_task.name}_s{seed}")
     ckpt_dir = run / "checkpoints"
     run.mkdir(parents=True, exist_ok=True)
+    if progress:  # where the run writes, before it starts (stderr: stdout ends with the card's JSON)
+        print(f"train: {algo} on {env_id} ({the_task.name}, seed {seed}, {total} steps): logs and checkpoints in "
+              f"{run}" + (f", the agent to {save_dir}" if save_dir else ""), file=sys.stderr, flush=True)
     venv = make_vec_env(env_id, n_envs, seed=train_seed, **env_kwargs)
     eval_env = make_vec_env(env_id, n_eval_episodes, seed=eval_seed, **env_kwargs)
     norm_kwargs = normalize if isinstance(normalize, dict) else ({} if normalize else None)

@@ -103,6 +103,11 @@ def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trial
     return out
 
 
+def _bar_name(progress: bool, name: str) -> str | None:
+    """The name of a tuner's progress bar over its evaluations (None: no bar)."""
+    return f"tuning {name}" if progress else None
+
+
 def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
               progress: bool = True, version: str = "v0") -> dict[str, Any]:
@@ -133,12 +138,13 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         todo = [n for n in todo if n not in out]
     if "pid-nominal" in todo:
         say("tuning pid-nominal on the nominal plant ...")
-        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT, version=version)
+        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT, version=version,
+                   progress=_bar_name(progress, "pid-nominal"))
         out["pid-nominal"] = _gain_entry(res, seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, "
                                                                 "Ct = 5e-16), 8 disturbance draws")
     if "pid-robust" in todo:
         say("tuning pid-robust over 32 tuning plants ...")
-        res = tune(seeds["robust"], task=t.name, version=version)
+        res = tune(seeds["robust"], task=t.name, version=version, progress=_bar_name(progress, "pid-robust"))
         out["pid-robust"] = _gain_entry(res, seeds["robust"], "one set of gains minimising the mean cost over 32 "
                                                               "plants of the task")
     if from_task:  # the oracles' tables, shared with another task
@@ -167,7 +173,7 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
         pid = (out.get("pid-robust") or shipped.get("pid-robust") or {}).get("log10_gains")
         res = tune_from(_pf_starts(t, seeds["robust"], version, pid), seeds["robust"], task=t.name, refine_iters=200,
-                        version=version)
+                        version=version, progress=_bar_name(progress, "pid-pf-robust"))
         out["pid-pf-robust"] = _gain_entry(res, seeds["robust"], (
             "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
             "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5), the LQR "
@@ -180,7 +186,7 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
         ap = _area(t)
         kff = np.log10(10.0 ** base[3] / ap * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
         res = tune_from(np.array([np.r_[base, k] for k in kff]), seeds["robust"], task=t.name, refine_iters=250,
-                       version=version)
+                        version=version, progress=_bar_name(progress, "pid-pf-ff"))
         out["pid-pf-ff"] = _gain_entry(res, seeds["robust"], (
             "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
             "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "

@@ -86,7 +86,8 @@ def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "
 
 
 def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: dict | None = None,
-              refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0") -> "TuneResult":
+              refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0",
+              progress: str | None = None) -> "TuneResult":
     """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
     Nelder-Mead within `PF_BOUNDS` on the plants `seeds`."""
     starts = np.atleast_2d(np.asarray(starts, float))
@@ -94,24 +95,43 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: di
     lo = np.log10([PF_BOUNDS[k][0] for k in names])
     hi = np.log10([PF_BOUNDS[k][1] for k in names])
     return _refine(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step_decades,
-                   xatol=0.01, fatol=1e-4, bounded=True, version=version)
+                   xatol=0.01, fatol=1e-4, bounded=True, version=version, progress=progress)
 
 
 def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: str,
             params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
-            bounded: bool, version: str = "v0") -> "TuneResult":
+            bounded: bool, version: str = "v0", progress: str | None = None) -> "TuneResult":
     """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
     by Nelder-Mead; never worse than that start. `bounded`: Nelder-Mead within [lo, hi], its first
-    simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains."""
+    simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains.
+    `progress`: a bar of that name counting the evaluations, with the best mean cost so far."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(desc=progress, unit="eval", disable=progress is None, leave=False)
+    with bar:
+        return _refine_in(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step,
+                          xatol=xatol, fatol=fatol, bounded=bounded, version=version, bar=bar)
+
+
+def _refine_in(starts, lo, hi, seeds, *, task, params, refine_iters, step, xatol, fatol, bounded, version,
+               bar) -> "TuneResult":
     starts = np.clip(starts, lo, hi)
     start_costs = mean_costs(starts, seeds, task=task, params=params, version=version)
     best = starts[int(np.argmin(start_costs))]
     n_eval = len(starts)
+    bar.update(n_eval)
+    lowest = [float(start_costs.min())]
+    bar.set_postfix(best=f"{lowest[0]:.4f}")
 
     def objective(u: np.ndarray) -> float:
         nonlocal n_eval
         n_eval += 1
-        return float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params, version=version)[0])
+        cost = float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params, version=version)[0])
+        bar.update(1)
+        if cost < lowest[0]:
+            lowest[0] = cost
+            bar.set_postfix(best=f"{cost:.4f}")
+        return cost
 
     dim = len(best)
     simplex = best + np.vstack([np.zeros(dim), step * np.eye(dim)])
@@ -142,13 +162,13 @@ class TuneResult:
 
 
 def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = None, grid=GRID,
-         refine_iters: int = 60, version: str = "v0") -> TuneResult:
+         refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
     gain_map = task_gain_map(task)
     lo, hi = gain_map.log_lo, gain_map.log_hi
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
-                   xatol=0.02, fatol=1e-3, bounded=False, version=version)
+                   xatol=0.02, fatol=1e-3, bounded=False, version=version, progress=progress)
 
 
 def plants_of(seeds: Sequence[int], task: str, version: str = "v0") -> list:
