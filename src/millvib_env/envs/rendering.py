@@ -1,5 +1,9 @@
 """A figure of the first environment's recent motion: displacement, velocity, gains or valve command,
-and the severity so far. Used by `render()` (rgb_array and human) and works with RecordVideo."""
+and the severity so far. Used by `render()` (rgb_array and human) and works with RecordVideo.
+
+The figure is built once per environment (axes, lines, layout); each frame only replaces the lines' data,
+rescales the axes and redraws. A full rebuild with a layout pass per frame took 0.2-1.3 s, so recording a
+500-step episode took minutes (`scripts/render_bench.py` measures both)."""
 
 from __future__ import annotations
 
@@ -8,6 +12,31 @@ import math
 import numpy as np
 
 from millvib_env.severity import vibration_severity
+
+_GAINS = ("KP", "KI", "KD")
+
+
+def _build(figure, mode: str) -> dict:
+    figure.clf()
+    ax_x, ax_v, ax_c = figure.subplots(3, 1, sharex=True)
+    art = {"axes": (ax_x, ax_v, ax_c), "mode": mode}
+    (art["x"],) = ax_x.plot([], [], lw=0.8)
+    ax_x.set_ylabel("x (um)")
+    (art["v"],) = ax_v.plot([], [], lw=0.8, color="tab:orange")
+    ax_v.set_ylabel("v (mm/s)")
+    if mode == "gain":
+        art["c"] = [ax_c.step([], [], where="post", label=f"log10 {name}")[0] for name in _GAINS]
+        ax_c.legend(fontsize=7, loc="upper left")
+        ax_c.set_ylabel("gains")
+    else:
+        art["c"] = [ax_c.step([], [], where="post", color="tab:green")[0]]
+        ax_c.set_ylabel("u (V)")
+    ax_c.set_xlabel("t (ms)")
+    for ax in (ax_x, ax_v, ax_c):
+        ax.grid(alpha=0.3)
+    art["title"] = figure.suptitle("", fontsize=9)
+    figure.tight_layout(rect=(0, 0, 1, 0.95))  # once: the layout does not change from frame to frame
+    return art
 
 
 def render_frame(core, figure=None, *, human: bool = False):
@@ -21,42 +50,37 @@ def render_frame(core, figure=None, *, human: bool = False):
     h = core.history[0]
     if figure is None:
         figure = plt.figure(figsize=(6.4, 4.8), dpi=80)
-    figure.clf()
-    ax_x, ax_v, ax_c = figure.subplots(3, 1, sharex=True)
+    art = getattr(figure, "_millvib_artists", None)
+    if art is None or art["mode"] != core.mode:
+        art = figure._millvib_artists = _build(figure, core.mode)
     t_end = h["t"][-1]
     xs = np.concatenate(h["x"])
     vs = np.concatenate(h["v"])
-    ts = t_end - core.dt_sample * np.arange(xs.size)[::-1]
-    ax_x.plot(ts * 1e3, xs * 1e6, lw=0.8)
-    ax_x.set_ylabel("x (um)")
-    ax_v.plot(ts * 1e3, vs * 1e3, lw=0.8, color="tab:orange")
-    ax_v.set_ylabel("v (mm/s)")
+    ts = (t_end - core.dt_sample * np.arange(xs.size)[::-1]) * 1e3
+    art["x"].set_data(ts, xs * 1e6)
+    art["v"].set_data(ts, vs * 1e3)
     steps = np.array(h["t"]) * 1e3
     if core.mode == "gain":
         gains = np.array(h["gains"])
-        for j, name in enumerate(("KP", "KI", "KD")):
-            ax_c.step(steps, np.log10(np.maximum(gains[:, j], 1e-12)), where="post", label=f"log10 {name}")
-        ax_c.legend(fontsize=7, loc="upper left")
-        ax_c.set_ylabel("gains")
+        for j, line in enumerate(art["c"]):
+            line.set_data(steps, np.log10(np.maximum(gains[:, j], 1e-12)))
     else:
-        ax_c.step(steps, h["u"], where="post", color="tab:green")
-        ax_c.set_ylabel("u (V)")
-    ax_c.set_xlabel("t (ms)")
+        art["c"][0].set_data(steps, np.asarray(h["u"], float))
+    for ax in art["axes"]:
+        ax.relim()
+        ax.autoscale_view()
     n_tr = int(core.n_trace[0])
     try:  # the band's 10 Hz edge needs 0.1 s of record
         sev = vibration_severity(core.acc_trace[0, :n_tr], core.cfg.sample_rate_hz)
     except ValueError:
         sev = math.nan
     p = core.params[0]
-    figure.suptitle(f"t = {t_end * 1e3:.0f} ms   severity so far {sev:.3g} mm/s   "
-                    f"c1 = {p.c1:.3g}, Ct = {p.Ct:.2g}", fontsize=9)
-    for ax in (ax_x, ax_v, ax_c):
-        ax.grid(alpha=0.3)
-    figure.tight_layout()
+    art["title"].set_text(f"t = {t_end * 1e3:.0f} ms   severity so far {sev:.3g} mm/s   "
+                          f"c1 = {p.c1:.3g}, Ct = {p.Ct:.2g}")
     if human:
         plt.pause(1e-3)
         return None, figure
-    canvas = FigureCanvasAgg(figure)
+    canvas = figure.canvas if isinstance(figure.canvas, FigureCanvasAgg) else FigureCanvasAgg(figure)
     canvas.draw()
     frame = np.asarray(canvas.buffer_rgba())[:, :, :3].copy()
     return frame, figure
