@@ -107,3 +107,12 @@ def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
     obs, _ = loop.reset(seed=120000)
     with pytest.raises(ValueError, match="sampled at 20000 Hz"):
         loop.step(wrong.predict(obs)[0])
+
+
+def test_the_controller_groups_expand_to_their_members_once():
+    from millvib_env.training.benchmark import DEPLOYABLE_CLASSICAL, _expand_groups
+
+    assert _expand_groups(["classical", "pid-paper"], "v1") == list(DEPLOYABLE_CLASSICAL)
+    assert _expand_groups(["bounds"], "v1") == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]
+    assert _expand_groups(["bounds"], "v0") == ["pid-pf-oracle", "lqr-oracle"]  # no MPC on the analog loop
+    assert _expand_groups(["my-agent", "classical"], "v1")[0] == "my-agent"

@@ -180,6 +180,14 @@ def _load_units(names: list[str], task: str, all_seeds: bool,
     return units, loaded
 
 
+def _expand_groups(names: Sequence[str], version: str) -> list[str]:
+    """Controller names with the groups 'classical' (`DEPLOYABLE_CLASSICAL`) and 'bounds' (the `ROOM_BOUNDS` that
+    the version has) in place, each name once."""
+    have = set(baseline_names(version))
+    groups = {"classical": list(DEPLOYABLE_CLASSICAL), "bounds": [n for n in ROOM_BOUNDS if n in have]}
+    return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
+
+
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
@@ -204,8 +212,8 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
-    names = list(dict.fromkeys(strings("controllers", controllers, "controller names"))) if controllers is not None \
-        else baseline_names(env_version) + list_agents(t.name, env_version)
+    names = _expand_groups(strings("controllers", controllers, "controller names"), env_version) \
+        if controllers is not None else baseline_names(env_version) + list_agents(t.name, env_version)
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")

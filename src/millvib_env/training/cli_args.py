@@ -59,8 +59,11 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="controllers to evaluate: baselines (pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
                         "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle; v1: mpc-oracle mpc-preview), shipped agent "
                         "names (folders under agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or "
-                        "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip (default: "
-                        "every baseline and every shipped agent trained on the task)")
+                        "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip; or the "
+                        "groups 'classical' (the deployable classical controllers: pid-paper pid-nominal pid-robust "
+                        "pid-adaptive pid-pf-robust pid-pf-ff; seconds) and 'bounds' (pid-pf-oracle lqr-oracle; v1: "
+                        "mpc-oracle mpc-preview; minutes) (default: every baseline and every shipped agent trained on "
+                        "the task)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "
                         "controller, sensors in the loop, a servo valve with dynamics and a +-10 V amplifier; "
