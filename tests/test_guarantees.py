@@ -46,7 +46,7 @@ def test_a_previous_result_of_the_same_command_is_replaced_but_not_once_a_user_a
 
 
 def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys, monkeypatch):
-    """An OS fault while the result is written (here ENOSPC at the final rename) is one line, exit 1, no
+    """An OS fault while the result is written (here ENOSPC at the final rename) is one line, exit 2, no
     traceback, and the previous result is still there whole."""
     import errno
 
@@ -60,7 +60,7 @@ def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys,
 
     monkeypatch.setattr(os, "replace", full)
     monkeypatch.setattr(os, "rename", full)
-    assert cli_main(QUICK + ["--out", str(out)]) == 1
+    assert cli_main(QUICK + ["--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and "Traceback" not in err[0], err
     monkeypatch.undo()
@@ -316,6 +316,16 @@ def _children(pid: int) -> list[int]:
     return kids
 
 
+def _ignores_ctrl_c(pid: int) -> bool:
+    """Whether process `pid` ignores SIGINT now (the SigIgn mask of /proc/<pid>/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    ignored = next((line.split()[1] for line in status.splitlines() if line.startswith("SigIgn:")), "0")
+    return bool(int(ignored, 16) >> (signal.SIGINT - 1) & 1)
+
+
 def _alive(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
@@ -372,7 +382,8 @@ def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tm
     _assert_ended(workers)
 
     proc = _millvib(*long_sweep, "--jobs", "2", "--out", str(tmp_path / "b"), start_new_session=True)
-    _wait_for(lambda: len(_children(proc.pid)) >= 3, proc, "two workers")
+    _wait_for(lambda: len(_children(proc.pid)) >= 3 and not _ignores_ctrl_c(proc.pid), proc,
+              "two workers and the parent's Ctrl-C handler back")  # it ignores Ctrl-C while it spawns them
     workers = _children(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
     err = proc.communicate(timeout=300)[1]

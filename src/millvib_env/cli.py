@@ -505,10 +505,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{command}: interrupted", file=sys.stderr)
         return 130
-    except OSError as err:  # the machine's fault, not the input's (a full disk, a read-only folder): one line, 1
+    except OSError as err:  # a full disk, a read-only or forbidden folder met while writing: one line, 2
         where = f": {err.filename}" if err.filename else ""
         print(f"{command}: error: {err.strerror or err}{where}", file=sys.stderr)
-        return 1
+        return 2
 
 if __name__ == "__main__":
     sys.exit(main())
