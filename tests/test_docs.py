@@ -42,3 +42,48 @@ def test_the_plain_sb3_recipe_runs_as_written_and_gives_the_benchmarks_episode(m
     rec = run_episodes(load_controller("ppo-gain-pf-rolling"), [120000], task="rolling")[0]
     assert np.isclose(scope["info"]["severity"], rec["severity_mm_s"], rtol=1e-6)
     assert np.isclose(scope["info"]["tracking_rms_um"], rec["tracking_rms_um"], rtol=1e-6)
+
+
+#: a path named in the docs or configs: under one of the project's folders, placeholders (<task>, *, NAME, T) allowed
+_PATH = re.compile(r"(?<![\w/.-])((?:scripts|src|configs|docs|tests|agents)/[A-Za-z0-9_./<>*-]*[A-Za-z0-9_/<>*])")
+_MODULE = re.compile(r"\bmillvib_env(?:\.[A-Za-z_][A-Za-z0-9_]*)+")
+
+
+def _placeholder(path: str) -> bool:
+    return any(c in path for c in "<*") or any(re.fullmatch(r"[A-Z]+|seed-[A-Z]|[A-Z]\.ya?ml", part)
+                                               for part in path.split("/"))
+
+
+def _module_exists(dotted: str) -> bool:
+    """A module of the package, or a name defined (def, class, assignment, import) in one."""
+    parts = dotted.split(".")
+    for k in range(len(parts), 0, -1):
+        base = ROOT / "src" / Path(*parts[:k])
+        source = base.with_suffix(".py") if base.with_suffix(".py").exists() else base / "__init__.py"
+        if source.exists():
+            if k == len(parts):
+                return True
+            name = parts[k]
+            return k == len(parts) - 1 and re.search(
+                rf"^\s*(def|class)\s+{name}\b|^\s*{name}\s*[:=]|\bimport\b.*\b{name}\b", source.read_text(),
+                re.M) is not None
+    return False
+
+
+def test_every_path_and_module_named_in_the_docs_and_configs_exists():
+    """Docs that cannot drift: each `scripts/...`, `src/...`, `configs/...`, `docs/...`, `tests/...` or `agents/...`
+    path and each `millvib_env.<module>[.<name>]` named in the README, docs/, agents/README.md or a config file
+    exists (a path from the repository's root or from the file's own folder)."""
+    files = [ROOT / "README.md", ROOT / "agents" / "README.md", *sorted((ROOT / "docs").glob("*.md")),
+             *sorted((ROOT / "configs").rglob("*.yaml")), *sorted((ROOT / "configs").rglob("*.yml"))]
+    missing = []
+    for f in files:
+        text = f.read_text()
+        for path in _PATH.findall(text):
+            if not _placeholder(path) and not (ROOT / path).exists() and not (f.parent / path).exists():
+                missing.append(f"{f.relative_to(ROOT)}: {path}")
+        missing += [f"{f.relative_to(ROOT)}: {m}" for m in _MODULE.findall(text) if not _module_exists(m)]
+        for name in re.findall(r"`(?:[A-Za-z0-9_]+/)*([A-Za-z0-9_]+\.py)`", text):  # `core.py`, `envs/core.py`
+            if not any(ROOT.glob(f"{top}/**/{name}") for top in ("src", "scripts", "tests")):
+                missing.append(f"{f.relative_to(ROOT)}: {name}")
+    assert not missing, missing
