@@ -363,3 +363,28 @@ def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs()
     assert ends == 2
     with pytest.raises(ValueError, match="seed"):
         fast.reset(seed=[1, 2])
+
+
+def test_every_task_config_has_its_own_id_that_runs_the_same_episodes():
+    """MillVib-<Name>-<Config>-<version> (for clients that take an id string only) is the generic id with that
+    config: the same first observations from gym.make, the SB3 VecEnv and Gymnasium's vector entry point; it
+    refuses another config; the registry and envs.batch.ID_CONFIGS list the same ids."""
+    from millvib_env import make_vec_env
+    from millvib_env.envs.batch import ID_CONFIGS
+
+    assert set(ID_CONFIGS) == {i for i in gym.registry if i.startswith("MillVib-") and i.count("-") == 3}
+    for env_id, config in ID_CONFIGS.items():
+        if not env_id.endswith("-v1"):
+            continue
+        generic = env_id.replace(f"-{config.capitalize()}-", "-")
+        own, _ = gym.make(env_id).reset(seed=3)
+        same, _ = gym.make(generic, config=config).reset(seed=3)
+        np.testing.assert_array_equal(own, same)
+        np.testing.assert_array_equal(make_vec_env(env_id, 2, seed=3).reset(),
+                                      make_vec_env(generic, 2, seed=3, config=config).reset())
+        vec, _ = gym.make_vec(env_id, 2, vectorization_mode="vector_entry_point").reset(seed=3)
+        np.testing.assert_array_equal(vec, gym.make_vec(generic, 2, vectorization_mode="vector_entry_point",
+                                                        config=config).reset(seed=3)[0])
+        other = "startup" if config != "startup" else "rolling"
+        with pytest.raises(ValueError, match="contradicts"):
+            make_vec_env(env_id, 1, config=other)

@@ -24,11 +24,16 @@ def _register_envs() -> None:
 
     for name in ("GainSchedule", "Valve"):
         for version in ("v0", "v1"):
-            env_id = f"MillVib-{name}-{version}"
-            if env_id not in gymnasium.registry:  # gym.make_vec(..., vectorization_mode="vector_entry_point"):
-                gymnasium.register(id=env_id, entry_point=f"millvib_env.envs.base:{name}Env",  # the batched engine
-                                   vector_entry_point=f"millvib_env.envs.vector:{name}VectorEnv",
-                                   kwargs={"env_version": version})
+            # the generic id, then one per task config (MillVib-Valve-Rolling-v1: config="rolling") for clients
+            # that take an id string only; the same list as envs.batch.ID_CONFIGS (tested)
+            for config in (None, "startup", "rolling", "change", "varied"):
+                env_id = f"MillVib-{name}-{version}" if config is None else \
+                    f"MillVib-{name}-{config.capitalize()}-{version}"
+                kwargs = {"env_version": version} if config is None else {"env_version": version, "config": config}
+                if env_id not in gymnasium.registry:  # gym.make_vec(..., vectorization_mode="vector_entry_point"):
+                    gymnasium.register(id=env_id, entry_point=f"millvib_env.envs.base:{name}Env",  # the batched
+                                       vector_entry_point=f"millvib_env.envs.vector:{name}VectorEnv",  # engine
+                                       kwargs=kwargs)
 
 
 _register_envs()

@@ -14,18 +14,38 @@ import numpy as np
 from millvib_env.envs.config import ENV_VERSIONS, load_env_config
 from millvib_env.envs.core import MillVibCore
 
-__all__ = ["EpisodeBatch", "ENV_IDS", "env_mode", "env_version", "env_id_for"]
+__all__ = ["EpisodeBatch", "ENV_IDS", "ID_CONFIGS", "env_mode", "env_version", "env_id_for", "id_config"]
 
 #: the environments' names and modes; their ids are ``MillVib-<name>-<version>`` (`envs.config.ENV_VERSIONS`)
 MODES = {"GainSchedule": "gain", "Valve": "valve"}
 #: registered id -> (the engine's mode, the environment's version)
 ENV_IDS = {f"MillVib-{name}-{version}": (mode, version) for name, mode in MODES.items() for version in ENV_VERSIONS}
+#: the env configs that have an id of their own, ``MillVib-<name>-<Config>-<version>`` (e.g. MillVib-Valve-Rolling-v1),
+#: for clients that take an id string only: the same environment with that config (the tasks' configs)
+TASK_CONFIGS = ("startup", "rolling", "change", "varied")
+#: per-config id -> its config
+ID_CONFIGS = {f"MillVib-{name}-{config.capitalize()}-{version}": config
+              for name in MODES for config in TASK_CONFIGS for version in ENV_VERSIONS}
+ENV_IDS.update({env_id: ENV_IDS[env_id.replace(f"-{config.capitalize()}-", "-")]
+                for env_id, config in ID_CONFIGS.items()})
 
 
 def _entry(env_id: str) -> tuple[str, str]:
     if not isinstance(env_id, str) or env_id not in ENV_IDS:
         raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
     return ENV_IDS[env_id]
+
+
+def id_config(env_id: str, config: str | dict | None) -> str | dict:
+    """The config an environment of `env_id` runs: `config`, or the id's own (a per-config id; "startup" for the
+    two generic ids). A per-config id given another config is refused."""
+    own = ID_CONFIGS.get(env_id)
+    if config is None:
+        return own or "startup"
+    if own is not None and config != own:
+        raise ValueError(f"config = {config!r} contradicts env_id {env_id!r}, whose config is {own!r}: use "
+                         f"{env_id.replace(f'-{own.capitalize()}-', '-')!r} with config={config!r}")
+    return config
 
 
 def env_mode(env_id: str) -> str:
@@ -51,9 +71,9 @@ class EpisodeBatch:
     """N environments of `env_id`; `reset(seeds)` starts environment i on seeds[i], `step` advances
     them all and restarts the finished ones (their next episode's first observation is returned)."""
 
-    def __init__(self, env_id: str, n: int, *, config: str | dict | None = "startup", residual: bool = False,
+    def __init__(self, env_id: str, n: int, *, config: str | dict | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
-        self.config = load_env_config(config, version=env_version(env_id), **overrides)
+        self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
         self.core = MillVibCore(n, env_mode(env_id), self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase)
         self.n = n

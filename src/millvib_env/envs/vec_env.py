@@ -15,7 +15,7 @@ from millvib_env.envs.core import MillVibCore
 
 __all__ = ["MillVibVecEnv", "make_vec_env", "ENV_IDS"]
 
-from millvib_env.envs.batch import ENV_IDS, env_mode, env_version  # noqa: E402 (one table of ids)
+from millvib_env.envs.batch import ENV_IDS, env_mode, env_version, id_config  # noqa: E402 (one table of ids)
 
 
 class MillVibVecEnv(VecEnv):
@@ -28,14 +28,14 @@ class MillVibVecEnv(VecEnv):
     """
 
     def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
-                 config: str | dict | None = "startup", residual: bool = False,
+                 config: str | dict | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, **overrides: Any):
         mode = env_mode(env_id)
         if render_mode not in (None, "rgb_array", "human"):
             raise ValueError(f"render_mode = {render_mode!r} is invalid")
         self.env_id = env_id
         self.render_mode = render_mode
-        self.config = load_env_config(config, version=env_version(env_id), **overrides)
+        self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
         self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase)
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)

@@ -267,6 +267,11 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
 
     cls = algo_class(algo, backend)
     the_task = get_task(task)
+    from millvib_env.envs.batch import ID_CONFIGS
+
+    if ID_CONFIGS.get(env_id, the_task.config) != the_task.config:
+        raise ValueError(f"--env {env_id} runs config {ID_CONFIGS[env_id]!r}, not task {the_task.name!r}'s "
+                         f"({the_task.config!r}): pass --task {ID_CONFIGS[env_id]} or a generic id")
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
     n_envs = int(hp.pop("n_envs"))
