@@ -299,9 +299,16 @@ def test_damaged_normalisation_statistics_are_refused_not_run(tmp_path, key, val
     assert "vecnormalize.npz" in str(info.value) and "\n" not in str(info.value)
 
 
+def _default_ctrl_c() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _millvib(*args: str, **popen) -> subprocess.Popen:
+    """The command in a child whose Ctrl-C is the default even where the suite runs with it ignored (a
+    non-interactive shell's `cmd &` ignores SIGINT, and a child inherits that: Python then keeps it ignored)."""
     return subprocess.Popen([sys.executable, "-c", "import sys; from millvib_cli import main; sys.exit(main())",
-                             *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, **popen)
+                             *args], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_ctrl_c, **popen)
 
 
 def _children(pid: int) -> list[int]:
