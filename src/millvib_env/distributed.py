@@ -104,11 +104,16 @@ def _run_pool(fn: Callable, jobs: list, processes: int, bar) -> list:
     except BaseException:
         if pool is not None:
             workers = list((getattr(pool, "_processes", None) or {}).values())
+            manager = getattr(pool, "_executor_manager_thread", None)
             pool.shutdown(wait=False, cancel_futures=True)
             for proc in workers:
                 proc.terminate()
             for proc in workers:
                 proc.join(timeout=5)
+            # The pool's own thread also joins (reaps) the workers; until it has recorded their exit, a
+            # worker that it reaped first still reads as alive here.
+            if manager is not None:
+                manager.join(timeout=5)
         raise
     pool.shutdown()
     return out
