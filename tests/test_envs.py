@@ -332,6 +332,54 @@ def test_the_period_summary_is_the_libraries_arithmetic(n_samp, spp):
         assert pairwise_sum(a, size) == pytest.approx(np.sum(a), rel=1e-14)
 
 
+def test_the_actuator_record_is_numpys_over_the_samples_written():
+    # the compiled record (envs.period.record_actuator) against numpy's: maxima and counts are exact
+    from millvib_env.envs.period import record_actuator
+    from millvib_env.plant.model import A_QL, A_U, A_XV, NAUX
+
+    rng = np.random.default_rng(1)
+    n, n_samp = 6, 40
+    rec = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, np.inf, -np.inf], (n, 1))
+    ref = rec.copy()
+    u_max = np.full(n, 10.0)
+    for _ in range(5):
+        aux = rng.normal(size=(n, n_samp + 1, NAUX)) * 8.0
+        n_valid = rng.integers(0, n_samp + 2, n)  # a period cut short anywhere, or whole
+        pl_lo, pl_hi = rng.normal(size=n), rng.normal(size=n) + 3.0
+        record_actuator(aux, n_valid, u_max, pl_lo, pl_hi, rec)
+        valid = np.arange(1, n_samp + 1)[None, :] < n_valid[:, None]
+        u = np.where(valid, np.abs(aux[:, 1:, A_U]), 0.0)
+        ref[:, 0] = np.maximum(ref[:, 0], u.max(axis=1))
+        ref[:, 1] += np.sum(valid & (u >= u_max[:, None]), axis=1)
+        ref[:, 2] += valid.sum(axis=1)
+        ref[:, 3] = np.maximum(ref[:, 3], np.where(valid, np.abs(aux[:, 1:, A_XV]), 0.0).max(axis=1))
+        ref[:, 4] = np.maximum(ref[:, 4], np.where(valid, np.abs(aux[:, 1:, A_QL]), 0.0).max(axis=1))
+        ref[:, 5], ref[:, 6] = np.minimum(ref[:, 5], pl_lo), np.maximum(ref[:, 6], pl_hi)
+        assert np.array_equal(rec, ref)
+    aux[0, 1, A_U] = np.nan  # a NaN is kept, as numpy's maximum keeps it
+    record_actuator(aux, np.full(n, n_samp + 1), u_max, pl_lo, pl_hi, rec)
+    assert np.isnan(rec[0, 0]) and not np.isnan(rec[1:, 0]).any()
+
+
+def test_sensor_noise_drawn_ahead_is_one_draw_per_observation_from_the_episodes_stream():
+    from millvib_env.envs.disturbances import SensorNoise
+    from millvib_env.envs.observation import Observer
+
+    noise = SensorNoise(x_m=5e-7, v_m_s=1e-4, a_m_s2=0.5)
+    obs = Observer("valve", residual=False, gain_names=("KP",), observe_phase=False, observe_params=False,
+                   noise=noise, delay=0, n=3)
+    rows = 4
+    for i in range(3):
+        obs.start_noise(i, np.random.default_rng(100 + i), rows)
+    got = [obs._noise(np.array([0, 2])) for _ in range(rows + 3)]  # past the block: from the stream itself
+    got += [obs._noise(np.array([1]))]
+    ref = {i: np.random.default_rng(100 + i) for i in range(3)}
+    want = [np.stack([noise.sample(ref[i], 1)[0] for i in (0, 2)]) for _ in range(rows + 3)]
+    want += [noise.sample(ref[1], 1)]
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+
+
 def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs():
     """gym.make_vec(id, n, vectorization_mode="vector_entry_point") is the batched engine behind Gymnasium's
     VectorEnv: step for step (through two episode ends) the same observations, rewards, ends, final observations

@@ -26,7 +26,7 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
-from millvib_env.envs.period import summarize_period
+from millvib_env.envs.period import record_actuator, summarize_period
 from millvib_env.envs.reward import Reward
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
@@ -34,7 +34,7 @@ from millvib_env.loop import kernel as loop_kernel
 from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS, peek_samples
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_ACC, A_QL, A_U, A_XV, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID,
+from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID,
                                      C_UEXT, IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, P_UMAX, drive_vector,
                                      pack, rated_flow, settled_state, state_scale)
 from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
@@ -115,7 +115,6 @@ class MillVibCore:
         # per-environment state
         n = self.n
         self.np_random: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(n)]
-        self.noise_rng: list[np.random.Generator | None] = [None] * n
         self.params: list[MillParams] = [config.base_params] * n
         self._plant_info: list[dict] = [{}] * n
         self.profiles: list[EpisodeProfile | None] = [None] * n
@@ -191,7 +190,7 @@ class MillVibCore:
         episode_seed = int(self.np_random[i].integers(2**63 - 1))
         ep = draw_episode(self.cfg, self.disturbances, episode_seed, self.n_ctrl, options)
         params, profile = ep.params, ep.profile
-        self.noise_rng[i] = ep.noise_rng
+        self.observer.start_noise(i, ep.noise_rng, self.max_steps + 1)  # an observation at reset and per step
         self.params[i] = params
         # info["params"]: the episode's plant (c1 and Ct replaced while it changes: `current_params`)
         self._plant_info[i] = {"c1": params.c1, "Ct": params.Ct, "beta_e": params.beta_e, "mt": params.mt,
@@ -388,7 +387,7 @@ class MillVibCore:
         params = [(self.params[i].c1, self.params[i].Ct) for i in idx] if self.observe_params else None
         if params is not None and any(self.profiles[i] is not None and self.profiles[i].change for i in idx):
             params = [tuple(self.current_params(i)[k] for k in ("c1", "Ct")) for i in idx]
-        return self.observer.build(idx, self.noise_rng, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
+        return self.observer.build(idx, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
                                    u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
                                    params=params, force=(self._observed_force(idx) if force is None else force)
@@ -489,18 +488,7 @@ class MillVibCore:
         """Add this period to each episode's actuator record (`actuator`): the command's largest
         magnitude and its samples at the amplifier's limit, the largest port opening and flow, the
         pressure's range; from the 10 kHz samples the period wrote."""
-        aux = self.AUXS[:, 1:, :]
-        valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
-        u = np.where(valid, np.abs(aux[:, :, A_U]), 0.0)
-        rec = self.actuator
-        u_max = self.P[:, P_UMAX]
-        rec[:, 0] = np.maximum(rec[:, 0], u.max(axis=1))
-        rec[:, 1] += np.sum(valid & (u >= u_max[:, None]), axis=1)
-        rec[:, 2] += valid.sum(axis=1)
-        rec[:, 3] = np.maximum(rec[:, 3], np.where(valid, np.abs(aux[:, :, A_XV]), 0.0).max(axis=1))
-        rec[:, 4] = np.maximum(rec[:, 4], np.where(valid, np.abs(aux[:, :, A_QL]), 0.0).max(axis=1))
-        rec[:, 5] = np.minimum(rec[:, 5], pl_lo)
-        rec[:, 6] = np.maximum(rec[:, 6], pl_hi)
+        record_actuator(self.AUXS, self.n_valid, self.P[:, P_UMAX], pl_lo, pl_hi, self.actuator)
 
     def actuator_metrics(self, i: int) -> dict:
         """Environment i's actuator record as episode metrics: the valve command's largest magnitude (V) and

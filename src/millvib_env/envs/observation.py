@@ -77,13 +77,42 @@ class Observer:
         names += [f"{names[j]}_lag_{k}" for k in self.history_samples for j in self._hist_cols]
         self.names = names
         self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
+        # the sensor noise of each environment's episode, drawn ahead at its start (`start_noise`)
+        self._noise_rng: list = [None] * n
+        self._noise_z = np.zeros((n, 0, 3))
+        self._noise_used = np.zeros(n, dtype=np.int64)
+        self._noise_scale = None if noise is None else np.array([noise.x_m, noise.v_m_s, noise.a_m_s2])
         depth = max(self.history_samples) + 1 if self.history_samples else 0
         self._hist = np.zeros((n, depth, len(self._hist_cols)), dtype=np.float32)
         self._lags = np.array(self.history_samples, dtype=np.intp)
 
-    def build(self, idx: np.ndarray, noise_rngs, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
+    def start_noise(self, i: int, rng: np.random.Generator, rows: int) -> None:
+        """A new episode in environment i: its sensor noise comes from the episode's own stream `rng`, one
+        standard normal triple per observation. The first `rows` triples are drawn now in one call: the same
+        numbers in the same order as one draw per observation (numpy's generators fill an array draw by draw);
+        an observation past them draws its own from `rng`, which goes on where the block ended."""
+        if self._noise_scale is None:
+            return
+        if self._noise_z.shape[1] != rows:
+            self._noise_z = np.zeros((len(self._noise_rng), rows, 3))
+        self._noise_z[i] = rng.standard_normal((rows, 3))
+        self._noise_rng[i] = rng
+        self._noise_used[i] = 0
+
+    def _noise(self, idx: np.ndarray) -> np.ndarray:
+        """The next sensor noise of environments `idx` (m, m/s, m/s^2), one row each."""
+        used = self._noise_used[idx]
+        rows = self._noise_z.shape[1]
+        z = self._noise_z[idx, np.minimum(used, rows - 1)]
+        for j in np.flatnonzero(used >= rows):  # past the block: straight from the stream
+            z[j] = self._noise_rng[idx[j]].standard_normal(3)
+        self._noise_used[idx] = used + 1
+        return z * self._noise_scale
+
+    def build(self, idx: np.ndarray, *, e, v, a, pL, ps, vib_rms, control, u_pid, phase,
               params, force=None, preview=None) -> np.ndarray:
-        """Observation rows for environments `idx` (sensor noise applied to e, v, a).
+        """Observation rows for environments `idx` (sensor noise applied to e, v, a; each environment's noise
+        was started by `start_noise`).
 
         control: the gain-action channels (gain mode) or the last action (valve mode); phase: the
         pump's phase angle (rad); params: (c1, Ct) pairs of the current plants; force: the load
@@ -91,7 +120,7 @@ class Observer:
         two arrays of shape (len(idx), len(preview_samples)).
         """
         if self.noise is not None:
-            noise = np.stack([self.noise.sample(noise_rngs[i], 1)[0] for i in idx])
+            noise = self._noise(np.asarray(idx))
             e, v, a = e - noise[:, 0], v + noise[:, 1], a + noise[:, 2]
         err, vel, acc, vib = _slog(np.stack([e, v, a, vib_rms * 1e3]), _ROW_Q0, _ROW_DENOM)  # _ROW_CHANNELS
         cols = [err, vel, acc, np.clip((pL - ps / 2) / ps, -1, 1), vib]

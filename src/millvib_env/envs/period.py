@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from millvib_env.plant.model import A_ACC, IPL, IV, IX
+from millvib_env.plant.model import A_ACC, A_QL, A_U, A_XV, IPL, IV, IX
 
-__all__ = ["summarize_period", "pairwise_sum"]
+__all__ = ["summarize_period", "record_actuator", "pairwise_sum"]
 
 #: numpy's unrolled block of its pairwise summation (numpy/_core/src/umath/loops_utils.h.src)
 _PW_BLOCKSIZE = 128
@@ -132,3 +132,40 @@ def summarize_period(YS, AUXS, xd_step, spp, sos, zi, acc_trace, n_trace, vib_ms
         x_abs_max[b] = x_max
         pl_min[b] = p_lo
         pl_max[b] = p_hi
+
+
+@njit(cache=True)
+def _max_abs(m, v):
+    """max(m, |v|) as numpy's maximum takes it: a NaN on either side gives NaN."""
+    a = abs(v)
+    return a if (a > m or a != a) else m
+
+
+@njit(cache=True)
+def record_actuator(AUXS, n_valid, u_max, pl_lo, pl_hi, rec):
+    """Add the period just integrated to each environment's actuator record rec[b] (`MillVibCore.actuator`):
+    the command's largest magnitude (V) and its samples at the amplifier's limit u_max[b], the samples, the
+    largest port opening and flow, the pressure's range (pl_lo, pl_hi from `summarize_period`). Only the
+    samples the kernel wrote count: AUXS[b, k] for 1 <= k < n_valid[b]."""
+    n_samp = AUXS.shape[1] - 1
+    for b in range(AUXS.shape[0]):
+        u_abs, xv_abs, ql_abs = 0.0, 0.0, 0.0
+        n_lim = 0
+        n_ok = 0
+        for k in range(1, n_samp + 1):
+            if k >= n_valid[b]:
+                break
+            u = abs(AUXS[b, k, A_U])
+            u_abs = _max_abs(u_abs, u)
+            if u >= u_max[b]:
+                n_lim += 1
+            n_ok += 1
+            xv_abs = _max_abs(xv_abs, AUXS[b, k, A_XV])
+            ql_abs = _max_abs(ql_abs, AUXS[b, k, A_QL])
+        rec[b, 0] = _max_abs(rec[b, 0], u_abs)
+        rec[b, 1] += n_lim
+        rec[b, 2] += n_ok
+        rec[b, 3] = _max_abs(rec[b, 3], xv_abs)
+        rec[b, 4] = _max_abs(rec[b, 4], ql_abs)
+        rec[b, 5] = min(rec[b, 5], pl_lo[b]) if pl_lo[b] == pl_lo[b] else pl_lo[b]
+        rec[b, 6] = max(rec[b, 6], pl_hi[b]) if pl_hi[b] == pl_hi[b] else pl_hi[b]
