@@ -139,6 +139,24 @@ def test_the_yaml_loader_refuses_aliases_repeated_keys_and_deep_nesting_before_b
     assert "c.yaml" in str(info.value) and "\n" not in str(info.value)
 
 
+def test_a_yaml_file_read_again_is_its_current_text_in_a_fresh_object(tmp_path):
+    """The loader keeps each text's parse for the process: a caller still gets its own object, and a file that
+    changed (even to the same size) is read as it is now; a file that became invalid is refused again."""
+    from millvib_env._yaml import load_yaml
+
+    path = tmp_path / "c.yaml"
+    path.write_text("a: {b: [1, 2]}\n")
+    first = load_yaml(path)
+    first["a"]["b"].append(3)
+    assert load_yaml(path) == {"a": {"b": [1, 2]}}
+    path.write_text("a: {b: [1, 5]}\n")
+    assert load_yaml(path) == {"a": {"b": [1, 5]}}
+    for _ in range(2):
+        path.write_text("a: {b: 1, b: 2}\n")
+        with pytest.raises(ValueError, match="given twice"):
+            load_yaml(path)
+
+
 @pytest.fixture
 def damaged_configs(tmp_path, monkeypatch):
     root = tmp_path / "configs"

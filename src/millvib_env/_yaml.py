@@ -3,7 +3,9 @@ what a config file never needs: aliases, deep nesting and repeated keys."""
 
 from __future__ import annotations
 
+import copy
 import re
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +66,17 @@ _Loader.add_implicit_resolver(
 MAX_BYTES = 16 * 2**20
 
 
+#: the largest text whose parse is kept for the process (the project's configs are a few kB)
+MAX_CACHED = 2**16
+
+
+@lru_cache(maxsize=256)
+def _parse(text: str) -> Any:
+    """A YAML text's data, parsed once per process per text (a benchmark reads the same few config files dozens
+    of times); callers get a deep copy. A text that fails to parse raises each time: errors are not cached."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+
+
 def load_yaml(path: str | Path, what: str = "config file", mapping: bool = False) -> Any:
     """The data of a YAML file, read with a safe loader (no tags that build Python objects); a file
     that is missing, not a regular file, too large, not UTF-8 or not valid YAML is a ValueError of
@@ -74,8 +87,8 @@ def load_yaml(path: str | Path, what: str = "config file", mapping: bool = False
             raise ValueError("no such file" if not path.exists() else "not a regular file")
         if path.stat().st_size > MAX_BYTES:
             raise ValueError(f"larger than {MAX_BYTES // 2**20} MiB")
-        with open(path, encoding="utf-8") as fh:
-            data = yaml.load(fh, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+        text = path.read_bytes().decode("utf-8")
+        data = copy.deepcopy(_parse(text)) if len(text) <= MAX_CACHED else _parse.__wrapped__(text)
     except ValueError as err:  # includes UnicodeDecodeError
         raise ValueError(f"{what} {path} cannot be read: {str(err).splitlines()[0]}") from None
     except OSError as err:
