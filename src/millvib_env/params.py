@@ -107,16 +107,16 @@ class MillParams:
         "> 0 (inf allowed)")
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ValueError(
-                    f"MillParams.{f.name} = {shown(value)} is invalid: must be a real number ({f.metadata['rule']})")
-            given, value = value, as_float(value)
-            object.__setattr__(self, f.name, value)
-            if math.isnan(value) or (math.isinf(value) and (f.name not in _MAY_BE_INF or given != value)):
-                raise ValueError(
-                    f"MillParams.{f.name} = {shown(given)} is invalid: must be finite ({f.metadata['rule']})")
+        for name, rule in _FIELD_RULES:
+            value = getattr(self, name)
+            given = value
+            if type(value) is not float:  # a plain float is kept as it is; any other real becomes one
+                if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                    raise ValueError(f"MillParams.{name} = {shown(value)} is invalid: must be a real number ({rule})")
+                value = as_float(value)
+                object.__setattr__(self, name, value)
+            if not math.isfinite(value) and (math.isnan(value) or name not in _MAY_BE_INF or given != value):
+                raise ValueError(f"MillParams.{name} = {shown(given)} is invalid: must be finite ({rule})")
         for name, ok in self._checks():
             if not ok:
                 f = self.__dataclass_fields__[name]
@@ -191,6 +191,8 @@ class MillParams:
 
 
 PARAM_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MillParams))
+#: (name, allowed range) per field, in order: what `MillParams.__post_init__` checks
+_FIELD_RULES: tuple[tuple[str, str], ...] = tuple((f.name, f.metadata["rule"]) for f in dataclasses.fields(MillParams))
 
 
 def _as_float(name: str, value: Any) -> float:
