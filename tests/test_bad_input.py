@@ -318,6 +318,7 @@ def _api_calls():
     }
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_every_public_function_refuses_wrong_arguments_with_a_valueerror():
     import gymnasium as gym
 

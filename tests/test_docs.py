@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -26,6 +28,7 @@ def test_every_local_link_in_the_readme_and_docs_resolves():
     assert not missing, missing
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_the_plain_sb3_recipe_runs_as_written_and_gives_the_benchmarks_episode(monkeypatch):
     # agents/README.md: a shipped agent loaded with PPO.load and the statistics file, nothing of ours
     # but the environment, gives the same episode as load_controller in the benchmark's loop

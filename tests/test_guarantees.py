@@ -31,6 +31,7 @@ def test_a_folder_with_a_users_files_is_refused_and_left_as_it_was(tmp_path, cap
     assert (out / "notes.txt").read_text() == "mine" and (out / "older_run").is_dir()
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_a_previous_result_of_the_same_command_is_replaced_but_not_once_a_user_adds_a_file(tmp_path, capsys):
     out = tmp_path / "results"
     assert cli_main(QUICK + ["--out", str(out)]) == 0
@@ -373,6 +374,7 @@ def test_ctrl_c_while_the_package_loads_is_one_line_not_a_traceback():
     assert run.stderr.strip().splitlines() == ["millvib: interrupted while loading"]
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
 def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tmp_path):
     """SIGTERM to a running command: one line, 143. Ctrl-C to the whole process group (what a terminal

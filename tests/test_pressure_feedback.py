@@ -121,7 +121,8 @@ def _plain_loop_cost(ctrl, seed: int) -> float:
     return episode_cost(info["severity"], info["tracking_rms_um"])
 
 
-@pytest.mark.parametrize("task", ["startup", pytest.param("rolling", marks=pytest.mark.slow)])
+@pytest.mark.slow  # every controller for an episode: the full suite runs it, the quick subset does not
+@pytest.mark.parametrize("task", ["startup", "rolling"])
 def test_every_controller_gives_the_benchmark_cost_in_a_plain_gymnasium_loop(task):
     from millvib_env.control.agents import list_agents
     from millvib_env.tasks import get_task

@@ -140,6 +140,7 @@ def test_the_same_seed_gives_the_same_json_bytes(tmp_path):
     assert not set(a["plants"]) & set(c["plants"])
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_all_seeds_pools_every_training_seed_of_an_agent(tmp_path):
     two = [n for n in list_agents("startup") if len(agent_seeds(n)) >= 2]
     if not two:
@@ -160,6 +161,7 @@ def test_all_seeds_pools_every_training_seed_of_an_agent(tmp_path):
     assert public_json(full)["all_seeds"] is True
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_a_benchmark_of_baselines_never_imports_torch(tmp_path):
     import subprocess
     import sys

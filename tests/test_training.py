@@ -111,6 +111,7 @@ def test_benchmark_is_deterministic_and_has_the_schema():
         assert SCHEMA <= set(summary) and summary["episodes"] == 4
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_benchmark_cli_writes_json_and_outputs(tmp_path):
     out = tmp_path / "bench.json"
     rc = cli_main(["benchmark", "--controllers", "pid-paper", "--episodes", "3", "--quiet", "--json", str(out),
@@ -126,8 +127,8 @@ def test_benchmark_cli_writes_json_and_outputs(tmp_path):
 def test_shipped_agents_load_and_run(name):
     agent = load_controller(name, seed=agent_seeds(name)[-1])
     assert {"algo", "env_id", "seed", "n_timesteps", "wall_time_s", "command"} <= set(agent.card)
-    recs = run_episodes(agent, [20_000, 20_001])
-    assert all(np.isfinite(r["cost"]) for r in recs)
+    recs = run_episodes(agent, [20_000])  # one episode: the agent's observations, actions and card fit its env
+    assert len(recs) == 1 and np.isfinite(recs[0]["cost"])
 
 
 def test_default_benchmark_covers_the_shipped_agents():

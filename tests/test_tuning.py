@@ -7,6 +7,7 @@ import pytest
 optuna = pytest.importorskip("optuna")
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
     storage = f"journal:{tmp_path / 'study.log'}"
     code = ("from millvib_env.training.tuning import tune_optuna; "
@@ -32,6 +33,7 @@ def test_a_bad_storage_is_refused():
             optuna_storage(url)
 
 
+@pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_a_better_entry(tmp_path, capsys):
     import yaml
 
