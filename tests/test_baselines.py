@@ -116,3 +116,32 @@ def test_the_controller_groups_expand_to_their_members_once():
     assert _expand_groups(["bounds"], "v1") == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]
     assert _expand_groups(["bounds"], "v0") == ["pid-pf-oracle", "lqr-oracle"]  # no MPC on the analog loop
     assert _expand_groups(["my-agent", "classical"], "v1")[0] == "my-agent"
+
+
+def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tmp_path, monkeypatch):
+    """docs/maintainers.md's recipe: a registry entry (`control.registry.fixed_gains`) and the gains in the task's
+    control config are all a new fixed-gain baseline needs to load and run by name."""
+    import shutil
+
+    from millvib_env._paths import config_dir
+    from millvib_env.control import registry
+
+    root = tmp_path / "configs"
+    shutil.copytree(config_dir(), root)
+    path = root / "control" / "v1" / "startup.yaml"
+    path.write_text(path.read_text() + "pid-mine:\n  gains: [2.0e5, 1.0e6, 100.0, 1.0e-4]\n  how: a test entry\n")
+    monkeypatch.setenv("MILLVIB_CONFIGS", str(root))
+    monkeypatch.setitem(registry.REGISTRY, "pid-mine", registry.Baseline("a test baseline", registry.fixed_gains))
+    ctrl = load_controller("pid-mine", "startup", version="v1")
+    assert ctrl.gains.tolist() == [2.0e5, 1.0e6, 100.0, 1.0e-4] and ctrl.description == "a test entry"
+    assert ctrl.env_id == "MillVib-GainSchedule-v1"
+    recs = run_episodes(ctrl, [20_000])
+    assert np.isfinite(recs[0]["cost"])
+
+
+def test_the_names_a_config_may_give_are_the_registrys_fixed_gain_sets():
+    # one fact in two layers: the env layer cannot import the control layer's registry, so this test keeps them equal
+    from millvib_env.control.registry import REGISTRY
+    from millvib_env.envs.config import NAMED_GAINS
+
+    assert set(NAMED_GAINS) == {name for name, b in REGISTRY.items() if b.named_gains}

@@ -4,7 +4,7 @@ import pytest
 
 import millvib_env
 from millvib_env.control.factory import load_controller
-from millvib_env.control.policies import REFERENCE
+from millvib_env.control.registry import REFERENCE
 from millvib_env.envs.config import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config

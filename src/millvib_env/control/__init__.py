@@ -2,8 +2,8 @@
 `load_controller` (`factory`), which builds any of them by name. The public names are imported on
 first use, so ``import millvib_env.control.base`` stays light."""
 
-_PUBLIC = {"load_controller": "factory", "load_control_config": "factory", "BASELINES": "policies",
-           "REFERENCE": "policies", "baseline_names": "policies", "list_agents": "agents",
+_PUBLIC = {"load_controller": "factory", "load_control_config": "factory", "BASELINES": "registry",
+           "REFERENCE": "registry", "baseline_names": "registry", "REGISTRY": "registry", "list_agents": "agents",
            "agent_seeds": "agents", "AgentPolicy": "agents", "Controller": "base"}
 __all__ = sorted(_PUBLIC)
 

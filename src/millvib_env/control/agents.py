@@ -15,7 +15,7 @@ import numpy as np
 from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
-from millvib_env.control.policies import baseline_names
+from millvib_env.control.registry import baseline_names
 from millvib_env.tasks import get_task
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",

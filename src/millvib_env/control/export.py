@@ -121,7 +121,7 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
 
     from millvib_env._checks import integer
     from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
-    from millvib_env.control.policies import baseline_names
+    from millvib_env.control.registry import baseline_names
 
     check_steps = integer("check_steps", check_steps, lo=1, hi=100_000)
     latency_calls = integer("latency_calls", latency_calls, lo=0, hi=1_000_000)

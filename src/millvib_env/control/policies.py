@@ -28,33 +28,8 @@ from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
 
-__all__ = ["FixedGainPolicy", "OraclePolicy", "LQRPolicy", "REFERENCE", "BASELINES", "LOOP_ONLY", "baseline_names"]
+__all__ = ["FixedGainPolicy", "OraclePolicy", "LQRPolicy"]
 
-#: every baseline by name, with what it is
-BASELINES = {
-    "pid-paper": "the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)",
-    "pid-nominal": "tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is commissioned",
-    "pid-robust": "one set of gains minimising the mean cost over the task's tuning plants",
-    "pid-oracle": "knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not deployable",
-    "pid-adaptive": "estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the estimate",
-    "lqr-oracle": "knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
-                  "linearised plant; not deployable",
-    "pid-pf-robust": "one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range of c1 and Ct: "
-                     "the active damping a plant engineer commissions; the benchmark's reference",
-    "pid-pf-ff": "pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), all five gains "
-                 "tuned together: the classical opponent of a controller that reads the load cells",
-    "pid-pf-oracle": "knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
-                     "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
-    "mpc-oracle": "knows the plant, its state and the disturbances now; model-predictive control of the valve at the "
-                  "loop's rate within +-u_max (control.mpc): the bound for a controller of any structure; not "
-                  "deployable; v1 only",
-    "mpc-preview": "mpc-oracle that also knows the disturbances' and the set-point's course over its horizon (an "
-                   "entry gauge's preview, made exact); not deployable; v1 only",
-}
-#: baselines that need the sampled loop (environment version v1)
-LOOP_ONLY = ("mpc-oracle", "mpc-preview")
-#: the benchmark's default reference: the strongest deployable classical controller
-REFERENCE = "pid-pf-robust"
 
 
 class FixedGainPolicy(Controller):
@@ -130,6 +105,3 @@ class LQRPolicy(PerEnvGains):
         return g
 
 
-def baseline_names(version: str | None = None) -> list[str]:
-    """Every baseline's name; with `version`, those that run in that environment version."""
-    return [n for n in BASELINES if version != "v0" or n not in LOOP_ONLY]

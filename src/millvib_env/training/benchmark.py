@@ -32,7 +32,7 @@ from millvib_env._paths import save_figure, write_text_atomic
 from millvib_env.control.agents import list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
-from millvib_env.control.policies import baseline_names
+from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig, task_config
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
@@ -203,7 +203,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
     (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
     controllers are the baselines and the agents trained in that version."""
-    from millvib_env.control.policies import REFERENCE
+    from millvib_env.control.registry import REFERENCE
 
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")

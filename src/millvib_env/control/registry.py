@@ -1,0 +1,131 @@
+"""The baselines by name: what each is and how it is built, in one table (`REGISTRY`).
+
+A baseline is a `Baseline` entry: its description (the benchmark's and `millvib controllers`' text), its
+builder (name, task, version, the task's env config and gain map -> a `Controller`), and whether it needs the
+sampled loop (v1) or is a fixed gain set that a config may name. `control.factory.load_controller` builds any of
+them, and agents by folder. A new fixed-gain baseline is one entry here (``build=fixed_gains``) and its entry
+in configs/control/[v1/]<task>.yaml (docs/maintainers.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+from millvib_env.control.base import Controller
+from millvib_env.control.policies import FixedGainPolicy, LQRPolicy, OraclePolicy
+from millvib_env.control.tuned import control_config_path, control_entry, entry_gains, oracle_table
+from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import EnvConfig
+from millvib_env.params import PAPER_GAINS
+
+__all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "baseline_names", "fixed_gains"]
+
+#: a builder: (name, task, environment version, the task's env config, its gain map) -> the controller
+Builder = Callable[[str, str, str, EnvConfig, GainMap], Controller]
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """One baseline: what it is, how it is built, and where it runs."""
+
+    description: str
+    build: Builder
+    #: it needs the sampled loop (environment version v1)
+    loop_only: bool = False
+    #: one fixed gain set, which an env config or hyperparameter file may name (`envs.config.NAMED_GAINS`)
+    named_gains: bool = False
+    #: the environment it acts in: "gain" (it sets the PID's gains) or "valve" (it commands the valve)
+    env_mode: str = "gain"
+
+
+def paper_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    """The paper's PID, the same on every task."""
+    return FixedGainPolicy(name, PAPER_GAINS, gain_map, REGISTRY[name].description)
+
+
+def fixed_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    """One fixed gain set, from the task's control config entry `name` (its ``gains`` and ``how``)."""
+    entry = control_entry(task, name, version)
+    return FixedGainPolicy(name, entry_gains(task, name, entry), gain_map, entry.get("how", ""))
+
+
+def gain_oracle(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    """The true plant's gains from the entry's table (`control.base.GainTable`)."""
+    return OraclePolicy(oracle_table(task, name, version), gain_map, name, task)
+
+
+def lqr_oracle(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    from millvib_env.control.lqr import LQRWeights
+
+    entry = control_entry(task, name, version)
+    return LQRPolicy(LQRWeights(**entry["weights"]), cfg.base_params, task, loop=cfg.loop)
+
+
+def adaptive(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
+
+    entry = control_entry(task, name, version)
+    return AdaptivePolicy(oracle_table(task, version=version), gain_map, EstimatorSettings(**entry["estimator"]),
+                          cfg.base_params, sample_rate_hz=cfg.sample_rate_hz)
+
+
+def mpc(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`)."""
+    from millvib_env.control.mpc import MPCPolicy, MPCSettings
+
+    if version == "v0":
+        raise ValueError(f"{name} runs on the loop as commissioned: use environment version v1, not v0")
+    entry = control_entry(task, name, version)
+    settings = entry.get("settings") if isinstance(entry, dict) else None
+    if not isinstance(settings, dict):
+        raise ValueError(f"{control_config_path(task, version)} {name}.settings = {settings!r:.60} is invalid: "
+                         "a mapping of MPCSettings fields")
+    fields = [f for f in MPCSettings.__dataclass_fields__ if f != "preview"]
+    unknown = sorted(str(k) for k in settings if k not in fields)
+    if unknown:
+        raise ValueError(f"{control_config_path(task, version)} {name}.settings has unknown keys {unknown}: "
+                         f"allowed {fields}")
+    return MPCPolicy(name, MPCSettings(**{**settings, "preview": name == "mpc-preview"}), version)
+
+
+#: every baseline by name, in the benchmark's order
+REGISTRY: dict[str, Baseline] = {
+    "pid-paper": Baseline("the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)", paper_gains, named_gains=True),
+    "pid-nominal": Baseline("tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is commissioned",
+                            fixed_gains, named_gains=True),
+    "pid-robust": Baseline("one set of gains minimising the mean cost over the task's tuning plants", fixed_gains,
+                           named_gains=True),
+    "pid-oracle": Baseline("knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not "
+                           "deployable", gain_oracle),
+    "pid-adaptive": Baseline("estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the "
+                             "estimate", adaptive),
+    "lqr-oracle": Baseline("knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
+                           "linearised plant; not deployable", lqr_oracle),
+    "pid-pf-robust": Baseline("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range of c1 "
+                              "and Ct: the active damping a plant engineer commissions; the benchmark's reference",
+                              fixed_gains, named_gains=True),
+    "pid-pf-ff": Baseline("pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), all "
+                          "five gains tuned together: the classical opponent of a controller that reads the load "
+                          "cells", fixed_gains, named_gains=True),
+    "pid-pf-oracle": Baseline("knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
+                              "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
+                              gain_oracle),
+    "mpc-oracle": Baseline("knows the plant, its state and the disturbances now; model-predictive control of the "
+                           "valve at the loop's rate within +-u_max (control.mpc): the bound for a controller of any "
+                           "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve"),
+    "mpc-preview": Baseline("mpc-oracle that also knows the disturbances' and the set-point's course over its horizon "
+                            "(an entry gauge's preview, made exact); not deployable; v1 only", mpc, loop_only=True,
+                            env_mode="valve"),
+}
+#: every baseline by name, with what it is
+BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()}
+#: baselines that need the sampled loop (environment version v1)
+LOOP_ONLY: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.loop_only)
+#: the benchmark's default reference: the strongest deployable classical controller
+REFERENCE = "pid-pf-robust"
+
+
+def baseline_names(version: str | None = None) -> list[str]:
+    """Every baseline's name; with `version`, those that run in that environment version."""
+    return [n for n in REGISTRY if version != "v0" or n not in LOOP_ONLY]

@@ -1,0 +1,83 @@
+"""The tuned baselines' config files, configs/control/[<version>/]<task>.yaml: the entry of a baseline (following
+`from_task`), its gains and its oracle tables, each checked as data before use."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from millvib_env._yaml import load_yaml
+from millvib_env.control.base import GainTable
+from millvib_env.envs.config import checked_gains
+from millvib_env.envs.config import control_config_path as _config_path
+from millvib_env.tasks import get_task
+
+__all__ = ["control_config_path", "load_control_config", "control_entry", "entry_gains", "oracle_table"]
+
+
+def control_config_path(task: str, version: str = "v0"):
+    """Where a task's tuned baselines live (`envs.config.control_config_path`), for a task name or alias."""
+    return _config_path(get_task(task).name, version)
+
+
+def load_control_config(task: str = "startup", version: str = "v0") -> dict[str, Any]:
+    """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
+    path = control_config_path(task, version)
+    if not path.is_file():
+        raise ValueError(f"no tuned baselines for task {get_task(task).name!r} in {version}: {path} is missing (run "
+                         f"millvib tune --task {get_task(task).name} --env-version {version} --write-config)")
+    return load_yaml(path, "control config", mapping=True)
+
+
+def control_entry(task: str, name: str, version: str = "v0", _via: tuple = ()) -> dict:
+    """Entry `name` of the task's control config, following `from_task` (a cycle is refused in one line)."""
+    task = get_task(task).name
+    if task in _via:
+        raise ValueError(f"{control_config_path(task, version)} {name}: from_task runs in a cycle "
+                         f"({' -> '.join(_via + (task,))}); one of them must hold the entry itself")
+    data = load_control_config(task, version)
+    if name not in data:
+        raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
+                         f"{task} --env-version {version} --only {name} --write-config)")
+    entry = data[name]
+    if isinstance(entry, dict) and "from_task" in entry:
+        if not isinstance(entry["from_task"], str):
+            raise ValueError(f"{control_config_path(task, version)} {name}.from_task = {entry['from_task']!r:.60} "
+                             "is invalid: a task name")
+        return control_entry(entry["from_task"], name, version, _via + (task,))
+    return entry
+
+
+def entry_gains(task: str, name: str, entry: dict) -> list[float]:
+    """A fixed-gain entry's gains, checked (`envs.config.checked_gains`)."""
+    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
+                         f"configs/control/{get_task(task).name}.yaml {name}.gains")
+
+
+def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> GainTable:
+    """The gain table of oracle `name`, checked as data: positive increasing grids of finite numbers and finite
+    log10 gains of shape (len(c1_grid), len(ct_grid), 3-5), gains within 1e-12 to 1e15."""
+    entry = control_entry(task, name, version)
+    where = f"{control_config_path(task, version)} {name}"
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where} = {entry!r:.60} is invalid: a mapping with c1_grid, ct_grid and log10_gains")
+    grids = []
+    for key in ("c1_grid", "ct_grid"):
+        try:
+            g = np.asarray(entry.get(key), dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            g = np.zeros(0)
+        if g.ndim != 1 or g.size < 2 or not np.all(np.isfinite(g)) or np.any(g <= 0) or np.any(np.diff(g) <= 0):
+            raise ValueError(f"{where}.{key} = {entry.get(key)!r:.60} is invalid: at least 2 increasing finite "
+                             "numbers > 0")
+        grids.append(g)
+    try:
+        table = np.asarray(entry.get("log10_gains"), dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        table = np.zeros(0)
+    if table.shape[:2] != (grids[0].size, grids[1].size) or table.ndim != 3 or not 3 <= table.shape[2] <= 5 \
+            or not np.all(np.isfinite(table)) or np.any(np.abs(table) > 15):
+        raise ValueError(f"{where}.log10_gains is invalid: finite log10 gains in [-15, 15] of shape "
+                         f"({grids[0].size}, {grids[1].size}, 3-5), one row per grid plant")
+    return GainTable(grids[0], grids[1], table)
