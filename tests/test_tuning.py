@@ -2,6 +2,7 @@
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 optuna = pytest.importorskip("optuna")
@@ -58,3 +59,39 @@ def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_
         assert tuned["pid-robust"]["tuning_cost"] <= ours["pid-robust"]["tuning_cost"]
     assert cli_main(["tune", "--task", "rolling", "--only", "pid-robust"]) == 2  # say where it goes
     assert "--out FILE" in capsys.readouterr().err
+
+
+def test_every_tuned_entry_is_a_registered_baseline_and_every_fixed_gain_set_is_tuned():
+    from millvib_env.control.registry import REGISTRY
+    from millvib_env.training.tune_task import ENTRIES, SHARED, TUNERS
+
+    assert ENTRIES == tuple(TUNERS) and set(SHARED) <= set(TUNERS) and set(TUNERS) <= set(REGISTRY)
+    assert {n for n, b in REGISTRY.items() if b.named_gains and n != "pid-paper"} <= set(TUNERS)
+
+
+def test_a_run_tunes_every_entry_in_order_each_on_the_one_it_builds_on(monkeypatch):
+    """The tuners' wiring, with the searches replaced by stand-ins that record what they were given: pid-pf-ff
+    starts from this run's pid-pf-robust, pid-adaptive takes this run's pid-oracle table, and --from-task
+    shares the oracles' entries instead of tuning them."""
+    from millvib_env.training import tuning
+    from millvib_env.training.tune_task import ENTRIES, tune_task
+
+    calls = []
+
+    def result(n_gains, tag):
+        calls.append(tag)
+        return tuning.TuneResult(np.full(n_gains, float(len(calls))), 1.0 + len(calls), np.zeros(n_gains), 2.0, 1)
+
+    monkeypatch.setattr(tuning, "tune", lambda seeds, **k: result(3, ("tune", k.get("params") is not None)))
+    monkeypatch.setattr(tuning, "tune_from", lambda starts, seeds, **k: result(starts.shape[1], ("from", starts[0])))
+    monkeypatch.setattr(tuning, "tune_lqr", lambda seeds, **k: {"weights": {}, "tuning_cost": 1.0})
+    monkeypatch.setattr(tuning, "tune_adaptive",
+                        lambda seeds, table=None, **k: {"estimator": {"tau_s": 0.1}, "table_rows": len(table.c1_grid)})
+    out = tune_task("startup", grid=2, progress=False, version="v1")
+    assert list(out) == list(ENTRIES)
+    assert out["pid-adaptive"]["table_rows"] == 2  # this run's 2 x 2 pid-oracle table, not the shipped 5 x 5
+    ff_start = next(c[1] for c in calls if c[0] == "from" and len(c[1]) == 5)
+    assert np.allclose(ff_start[:4], out["pid-pf-robust"]["log10_gains"])
+    shared = tune_task("rolling", only=["pid-oracle", "lqr-oracle", "pid-pf-oracle"], from_task="startup",
+                       progress=False, version="v1")
+    assert shared == {n: {"from_task": "startup"} for n in ("pid-oracle", "lqr-oracle", "pid-pf-oracle")}

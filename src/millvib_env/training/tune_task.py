@@ -28,8 +28,9 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -37,10 +38,13 @@ from millvib_env.tasks import Task, get_task
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
 
-ENTRIES = ("pid-nominal", "pid-robust", "pid-oracle", "lqr-oracle", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
-           "pid-pf-oracle")
 #: the plant of pid-nominal: Table 1's c1 and Ct
 NOMINAL_PLANT = {"c1": 2.25e6, "Ct": 5e-16}
+#: pid-pf-oracle's "how"
+PF_ORACLE_HOW = ("PID + pressure-feedback gains tuned per grid plant over 32 disturbance draws (Nelder-Mead from "
+                 "pid-pf-robust, 60 iterations, never worse than pid-pf-robust on them); log10 gains interpolated "
+                 "bilinearly in (log c1, log Ct). With 6 draws per plant (as pid-oracle) the table overfitted: "
+                 "1.083 on the rolling validation plants against 0.993 for pid-pf-robust")
 
 
 def tuning_seeds(task: Task) -> dict[str, list[int]]:
@@ -108,100 +112,152 @@ def _bar_name(progress: bool, name: str) -> str | None:
     return f"tuning {name}" if progress else None
 
 
+@dataclass
+class _Run:
+    """One `tune_task` call: the task, its tuning seeds and what this run has tuned so far (`out`)."""
+
+    t: Task
+    seeds: dict[str, list[int]]
+    version: str
+    grid: int
+    progress: bool
+    shipped: dict
+    out: dict = field(default_factory=dict)
+
+    def say(self, msg: str) -> None:
+        if self.progress:
+            print(msg, flush=True)
+
+    def current(self, name: str) -> dict:
+        """Entry `name` from this run, else from the shipped config (an entry another builds on)."""
+        entry = self.out.get(name, self.shipped.get(name))
+        if entry is None:
+            raise ValueError(f"tuning needs the {name!r} entry of task {self.t.name!r}: tune it in the same run "
+                             f"(--only {name} ...)")
+        return entry
+
+    def bar(self, name: str) -> str | None:
+        return _bar_name(self.progress, name)
+
+
+def _tune_nominal(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune
+
+    r.say("tuning pid-nominal on the nominal plant ...")
+    res = tune(r.seeds["nominal"], task=r.t.name, params=NOMINAL_PLANT, version=r.version,
+               progress=r.bar("pid-nominal"))
+    return _gain_entry(res, r.seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, Ct = 5e-16), 8 "
+                                                "disturbance draws")
+
+
+def _tune_robust(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune
+
+    r.say("tuning pid-robust over 32 tuning plants ...")
+    res = tune(r.seeds["robust"], task=r.t.name, version=r.version, progress=r.bar("pid-robust"))
+    return _gain_entry(res, r.seeds["robust"], "one set of gains minimising the mean cost over 32 plants of the task")
+
+
+def _tune_pid_oracle(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune
+
+    return _tuned_table(r.t, r.grid, "pid-oracle", r.seeds["oracle"], r.progress, (
+        "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
+        "(log c1, log Ct) between grid points"),
+        lambda plant: tune(r.seeds["oracle"], task=r.t.name, params=plant, refine_iters=40, version=r.version),
+        r.version)
+
+
+def _tune_lqr(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune_lqr
+
+    r.say("tuning lqr-oracle weights ...")
+    res = tune_lqr(r.seeds["robust"], task=r.t.name, version=r.version)
+    return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
+            "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant designs over 32 "
+                   "tuning plants"}
+
+
+def _tune_adaptive(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune_adaptive
+
+    r.say("tuning pid-adaptive forgetting time ...")
+    res = tune_adaptive(r.seeds["robust"], task=r.t.name, table=_table(r.current("pid-oracle"), r.version),
+                        version=r.version)
+    return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
+            "how": "estimator forgetting time constant with the lowest mean cost over 32 tuning plants; gains "
+                   "from the pid-oracle table at the estimate"}
+
+
+def _tune_pf_robust(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune_from
+
+    r.say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
+    pid = (r.out.get("pid-robust") or r.shipped.get("pid-robust") or {}).get("log10_gains")
+    res = tune_from(_pf_starts(r.t, r.seeds["robust"], r.version, pid), r.seeds["robust"], task=r.t.name,
+                    refine_iters=200, version=r.version, progress=r.bar("pid-pf-robust"))
+    entry = _gain_entry(res, r.seeds["robust"], (
+        "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
+        "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5), the LQR "
+        "design of the centre plant and pid-robust with KPL = 1e-8, refined by Nelder-Mead (200 iterations, "
+        "KD <= 300)"))
+    r.say(f"  {entry['gains']} cost {res.cost:.4f}")
+    return entry
+
+
+def _tune_pf_ff(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune_from
+
+    r.say("tuning pid-pf-ff (pid-pf-robust + force feedforward) over 32 tuning plants ...")
+    base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
+    kff = np.log10(10.0 ** base[3] / _area(r.t) * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
+    res = tune_from(np.array([np.r_[base, k] for k in kff]), r.seeds["robust"], task=r.t.name, refine_iters=250,
+                    version=r.version, progress=r.bar("pid-pf-ff"))
+    entry = _gain_entry(res, r.seeds["robust"], (
+        "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
+        "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "
+        "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
+    r.say(f"  {entry['gains']} cost {res.cost:.4f}")
+    return entry
+
+
+def _tune_pf_oracle(r: _Run) -> dict:
+    from millvib_env.training.tuning import tune_from
+
+    base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
+    return _tuned_table(r.t, r.grid, "pid-pf-oracle", r.seeds["pf-oracle"], r.progress, PF_ORACLE_HOW,
+                        lambda plant: tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t.name, refine_iters=60,
+                                                step_decades=0.2, params=plant, version=r.version), r.version)
+
+
+#: how each tunable baseline is tuned, in the order a run tunes them (an entry may build on one before it)
+TUNERS: dict[str, Callable[[_Run], dict]] = {
+    "pid-nominal": _tune_nominal, "pid-robust": _tune_robust, "pid-oracle": _tune_pid_oracle, "lqr-oracle": _tune_lqr,
+    "pid-adaptive": _tune_adaptive, "pid-pf-robust": _tune_pf_robust, "pid-pf-ff": _tune_pf_ff,
+    "pid-pf-oracle": _tune_pf_oracle,
+}
+#: every entry `millvib tune` tunes
+ENTRIES = tuple(TUNERS)
+#: the entries that `--from-task` shares with another task instead of tuning them (the oracles' tables)
+SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
+
+
 def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
               progress: bool = True, version: str = "v0") -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config)."""
-    from millvib_env.training.tuning import tune, tune_adaptive, tune_from, tune_lqr
-
     t = get_task(task)
-    seeds = tuning_seeds(t)
+    r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}))
     todo = list(dict.fromkeys(only or ENTRIES))
-    shipped = dict(shipped or {})
-    out: dict[str, Any] = {}
-
-    def say(msg: str) -> None:
-        if progress:
-            print(msg, flush=True)
-
-    def current(name: str) -> dict:
-        entry = out.get(name, shipped.get(name))
-        if entry is None:
-            raise ValueError(f"tuning needs the {name!r} entry of task {t.name!r}: tune it in the same run "
-                             f"(--only {name} ...)")
-        return entry
-
     if optuna:
-        out.update(_tune_with_optuna(t, seeds, todo, optuna, trials, say, version))
-        todo = [n for n in todo if n not in out]
-    if "pid-nominal" in todo:
-        say("tuning pid-nominal on the nominal plant ...")
-        res = tune(seeds["nominal"], task=t.name, params=NOMINAL_PLANT, version=version,
-                   progress=_bar_name(progress, "pid-nominal"))
-        out["pid-nominal"] = _gain_entry(res, seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, "
-                                                                "Ct = 5e-16), 8 disturbance draws")
-    if "pid-robust" in todo:
-        say("tuning pid-robust over 32 tuning plants ...")
-        res = tune(seeds["robust"], task=t.name, version=version, progress=_bar_name(progress, "pid-robust"))
-        out["pid-robust"] = _gain_entry(res, seeds["robust"], "one set of gains minimising the mean cost over 32 "
-                                                              "plants of the task")
-    if from_task:  # the oracles' tables, shared with another task
-        out.update({name: {"from_task": get_task(from_task).name}
-                    for name in ("pid-oracle", "lqr-oracle", "pid-pf-oracle") if name in todo})
-        todo = [n for n in todo if n not in out]
-    if "pid-oracle" in todo:
-        out["pid-oracle"] = _tuned_table(t, grid, "pid-oracle", seeds["oracle"], progress, (
-            "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
-            "(log c1, log Ct) between grid points"),
-            lambda plant: tune(seeds["oracle"], task=t.name, params=plant, refine_iters=40, version=version), version)
-    if "lqr-oracle" in todo:
-        say("tuning lqr-oracle weights ...")
-        res = tune_lqr(seeds["robust"], task=t.name, version=version)
-        out["lqr-oracle"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
-                             "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant "
-                                    "designs over 32 tuning plants"}
-    if "pid-adaptive" in todo:
-        say("tuning pid-adaptive forgetting time ...")
-        res = tune_adaptive(seeds["robust"], task=t.name, table=_table(current("pid-oracle"), version),
-                            version=version)
-        out["pid-adaptive"] = {**res, "seeds": [seeds["robust"][0], seeds["robust"][-1]],
-                               "how": "estimator forgetting time constant with the lowest mean cost over 32 "
-                                      "tuning plants; gains from the pid-oracle table at the estimate"}
-    if "pid-pf-robust" in todo:
-        say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
-        pid = (out.get("pid-robust") or shipped.get("pid-robust") or {}).get("log10_gains")
-        res = tune_from(_pf_starts(t, seeds["robust"], version, pid), seeds["robust"], task=t.name, refine_iters=200,
-                        version=version, progress=_bar_name(progress, "pid-pf-robust"))
-        out["pid-pf-robust"] = _gain_entry(res, seeds["robust"], (
-            "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
-            "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5), the LQR "
-            "design of the centre plant and pid-robust with KPL = 1e-8, refined by Nelder-Mead (200 iterations, "
-            "KD <= 300)"))
-        say(f"  {out['pid-pf-robust']['gains']} cost {res.cost:.4f}")
-    if "pid-pf-ff" in todo:
-        say("tuning pid-pf-ff (pid-pf-robust + force feedforward) over 32 tuning plants ...")
-        base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
-        ap = _area(t)
-        kff = np.log10(10.0 ** base[3] / ap * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
-        res = tune_from(np.array([np.r_[base, k] for k in kff]), seeds["robust"], task=t.name, refine_iters=250,
-                        version=version, progress=_bar_name(progress, "pid-pf-ff"))
-        out["pid-pf-ff"] = _gain_entry(res, seeds["robust"], (
-            "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
-            "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "
-            "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
-        say(f"  {out['pid-pf-ff']['gains']} cost {res.cost:.4f}")
-    if "pid-pf-oracle" in todo:
-        base = np.asarray(current("pid-pf-robust")["log10_gains"], float)
-        out["pid-pf-oracle"] = _tuned_table(t, grid, "pid-pf-oracle", seeds["pf-oracle"], progress, (
-            "PID + pressure-feedback gains tuned per grid plant over 32 disturbance draws (Nelder-Mead from "
-            "pid-pf-robust, 60 iterations, never worse than pid-pf-robust on them); log10 gains interpolated "
-            "bilinearly in (log c1, log Ct). With 6 draws per plant (as pid-oracle) the table overfitted: 1.083 "
-            "on the rolling validation plants against 0.993 for pid-pf-robust"),
-            lambda plant: tune_from(base[None, :], seeds["pf-oracle"], task=t.name, refine_iters=60,
-                                    step_decades=0.2, params=plant, version=version), version)
-    return out
+        r.out.update(_tune_with_optuna(t, r.seeds, todo, optuna, trials, r.say, version))
+    for name, step in TUNERS.items():
+        if name not in todo or name in r.out:
+            continue
+        r.out[name] = {"from_task": get_task(from_task).name} if from_task and name in SHARED else step(r)
+    return r.out
 
 
 def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool, how: str, tune_plant,
