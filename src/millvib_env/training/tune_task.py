@@ -189,36 +189,35 @@ def _tune_adaptive(r: _Run) -> dict:
                    "from the pid-oracle table at the estimate"}
 
 
-def _tune_pf_robust(r: _Run) -> dict:
+def _refined(r: _Run, name: str, starts: np.ndarray, iters: int, how: str) -> dict:
+    """A fixed-gain entry refined by Nelder-Mead from `starts` over the pid-robust plants; says its gains."""
     from millvib_env.training.tuning import tune_from
 
+    res = tune_from(starts, r.seeds["robust"], task=r.t.name, refine_iters=iters, version=r.version,
+                    progress=r.bar(name))
+    entry = _gain_entry(res, r.seeds["robust"], how)
+    r.say(f"  {entry['gains']} cost {res.cost:.4f}")
+    return entry
+
+
+def _tune_pf_robust(r: _Run) -> dict:
     r.say("tuning pid-pf-robust (PID + pressure feedback) over 32 tuning plants ...")
     pid = (r.out.get("pid-robust") or r.shipped.get("pid-robust") or {}).get("log10_gains")
-    res = tune_from(_pf_starts(r.t, r.seeds["robust"], r.version, pid), r.seeds["robust"], task=r.t.name,
-                    refine_iters=200, version=r.version, progress=r.bar("pid-pf-robust"))
-    entry = _gain_entry(res, r.seeds["robust"], (
+    return _refined(r, "pid-pf-robust", _pf_starts(r.t, r.seeds["robust"], r.version, pid), 200, (
         "one PID + pressure feedback (KP, KI, KD, KPL) minimising the mean cost over the 32 pid-robust plants: "
         "the best of a 36-point grid (KP 10^5.5-10^6.5, KI 10^7-10^9, KD 300, KPL 10^-5-10^-3.5), the LQR "
         "design of the centre plant and pid-robust with KPL = 1e-8, refined by Nelder-Mead (200 iterations, "
         "KD <= 300)"))
-    r.say(f"  {entry['gains']} cost {res.cost:.4f}")
-    return entry
 
 
 def _tune_pf_ff(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune_from
-
     r.say("tuning pid-pf-ff (pid-pf-robust + force feedforward) over 32 tuning plants ...")
     base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
     kff = np.log10(10.0 ** base[3] / _area(r.t) * np.array([0.25, 0.5, 0.75, 1.0, 1.25]))
-    res = tune_from(np.array([np.r_[base, k] for k in kff]), r.seeds["robust"], task=r.t.name, refine_iters=250,
-                    version=r.version, progress=r.bar("pid-pf-ff"))
-    entry = _gain_entry(res, r.seeds["robust"], (
+    return _refined(r, "pid-pf-ff", np.array([np.r_[base, k] for k in kff]), 250, (
         "pid-pf-robust plus KFF (u += KFF (FL(t) - FL), the load cells' force deviation): KFF on a grid of "
         "0.25-1.25 x KPL / Ap from pid-pf-robust's gains, then all five gains refined by Nelder-Mead "
         "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
-    r.say(f"  {entry['gains']} cost {res.cost:.4f}")
-    return entry
 
 
 def _tune_pf_oracle(r: _Run) -> dict:
