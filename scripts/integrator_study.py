@@ -115,7 +115,7 @@ E32 = 6.0 + math.sqrt(2.0)
 
 
 @njit(cache=True)
-def ros23(y0, p, c, dt_out, n_out, rtol, atol):
+def ros23(y0, p, c, dt_out, n_out, rtol, atol):  # noqa: C901 (one compiled step loop)
     out = np.empty((n_out, NY))
     y = y0.copy()
     aux = np.empty(NAUX)

@@ -295,17 +295,8 @@ class MillVibCore:
                                            self.status, self.n_valid, self.n_steps)
 
         failed = self.status != 0
-        if failed.any():  # hold the last good sample so nothing non-finite reaches the filters
-            samples, aux = self.YS[:, 1:, :], self.AUXS[:, 1:, :]
-            valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
-            last = np.maximum(self.n_valid - 1, 0)
-            for b in np.flatnonzero(failed):
-                good_y = self.YS[b, last[b]] if np.all(np.isfinite(self.YS[b, last[b]])) else self.YS[b, 0]
-                good_a = self.AUXS[b, last[b]] if np.all(np.isfinite(self.AUXS[b, last[b]])) else self.AUXS[b, 0]
-                samples[b, ~valid[b]] = good_y
-                aux[b, ~valid[b]] = good_a
-                if not np.all(np.isfinite(self.Y[b])):
-                    self.Y[b] = good_y
+        if failed.any():
+            self._hold_last_good(failed)
         vib_ms, err_ms, x_abs, pl_lo, pl_hi = self._period
         summarize_period(self.YS, self.AUXS, xd_step, self.spp, self.reward.sos, self.reward.zi, self.acc_trace,
                          self.n_trace, vib_ms, err_ms, x_abs, pl_lo, pl_hi)
@@ -343,6 +334,20 @@ class MillVibCore:
             infos[i].update(m)
         self._record_history()
         return out_obs, reward.astype(np.float64), terminated, truncated, infos
+
+    def _hold_last_good(self, failed: np.ndarray) -> None:
+        """In the environments whose period failed, hold the last good sample over the samples not written, so
+        nothing non-finite reaches the filters (and the plant state, if it went non-finite)."""
+        samples, aux = self.YS[:, 1:, :], self.AUXS[:, 1:, :]
+        valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
+        last = np.maximum(self.n_valid - 1, 0)
+        for b in np.flatnonzero(failed):
+            good_y = self.YS[b, last[b]] if np.all(np.isfinite(self.YS[b, last[b]])) else self.YS[b, 0]
+            good_a = self.AUXS[b, last[b]] if np.all(np.isfinite(self.AUXS[b, last[b]])) else self.AUXS[b, 0]
+            samples[b, ~valid[b]] = good_y
+            aux[b, ~valid[b]] = good_a
+            if not np.all(np.isfinite(self.Y[b])):
+                self.Y[b] = good_y
 
     def _signals(self, i: int, xd: np.ndarray) -> dict:
         """The period's samples of environment i as a mill's data acquisition records them: position,

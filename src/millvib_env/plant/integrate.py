@@ -242,6 +242,32 @@ def _as_list(obj, cls, n: int | None, name: str) -> list:
     return items
 
 
+def _plants_and_gains(params, gains) -> tuple[list, list]:
+    """`simulate_batch`'s params and gains as two lists of equal length (a single object is shared by all)."""
+    n = None
+    for obj, cls, name in ((params, MillParams, "params"), (gains, PIDGains, "gains")):
+        if not isinstance(obj, cls):
+            if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__len__"):
+                raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
+            n = len(obj) if n is None else n
+    p_list = _as_list(params, MillParams, n, "params")
+    g_list = _as_list(gains, PIDGains, n, "gains")
+    if len(p_list) != len(g_list):
+        raise ValueError(f"params ({len(p_list)}) and gains ({len(g_list)}) must have the same length")
+    return p_list, g_list
+
+
+def _start_positions(x0, n: int) -> np.ndarray:
+    """The N plants' start positions (m): one finite number for all or one per plant."""
+    x0a = _as_floats("x0", x0)
+    if x0a.ndim > 1 or x0a.size not in (1, n):
+        raise ValueError(f"x0 = {x0!r:.60} is invalid: a number (m) or one per plant ({n})")
+    x0s = np.broadcast_to(x0a.reshape(-1), (n,))
+    if not np.all(np.isfinite(x0s)):
+        raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
+    return x0s
+
+
 def _check_rtol(rtol: float) -> float:
     return real("rtol", rtol, lo=1e-14, hi=1e-2)
 
@@ -301,24 +327,10 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     t_end, dt_out = float(t_end), float(dt_out)
     if not isinstance(pid_on, (bool, np.bool_)):
         raise ValueError(f"pid_on = {pid_on!r:.60} is invalid: True or False")
-    n = None
-    for obj, cls, name in ((params, MillParams, "params"), (gains, PIDGains, "gains")):
-        if not isinstance(obj, cls):
-            if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__len__"):
-                raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
-            n = len(obj) if n is None else n
-    p_list = _as_list(params, MillParams, n, "params")
-    g_list = _as_list(gains, PIDGains, n, "gains")
-    if len(p_list) != len(g_list):
-        raise ValueError(f"params ({len(p_list)}) and gains ({len(g_list)}) must have the same length")
+    p_list, g_list = _plants_and_gains(params, gains)
     N = len(p_list)
     XD = _xd_samples(xd, t, N)
-    x0a = _as_floats("x0", x0)
-    if x0a.ndim > 1 or x0a.size not in (1, N):
-        raise ValueError(f"x0 = {x0!r:.60} is invalid: a number (m) or one per plant ({N})")
-    x0s = np.broadcast_to(x0a.reshape(-1), (N,))
-    if not np.all(np.isfinite(x0s)):
-        raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
+    x0s = _start_positions(x0, N)
     P = np.stack([pack(p) for p in p_list])
     if y0 is None:
         _check_stroke(p_list, x0s)  # before the start's pressure balance divides by the chamber's length

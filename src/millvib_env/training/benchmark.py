@@ -188,6 +188,34 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
+def _collect_records(units: list, loaded: dict, plants: list[int], task: str, env_id: str, ray: str | None,
+                     progress: bool) -> dict[tuple, list[dict]]:
+    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as Ray tasks of
+    CHUNK episodes (each episode depends only on its seeds, so the records are the same)."""
+    records: dict[tuple, list[dict]] = {}
+    if ray is not None:
+        from millvib_env.distributed import run_jobs
+
+        jobs = [{"name": n, "task": task, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
+                for n, s in units for i in range(0, len(plants), CHUNK)]
+        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {task} (ray)")
+        for job, part in zip(jobs, parts):
+            records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
+    else:
+        for unit in tqdm(units, desc=f"benchmark {task}", unit="run", disable=not progress):
+            records[unit] = _run(loaded[unit], plants, task)
+    return records
+
+
+def _scenario_records(ctrl, plant: int, task: str) -> dict[str, dict]:
+    """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost."""
+    out = {}
+    for sc in distinct_plant_scenarios():
+        rec = _run(ctrl, [plant], task, scenario=sc)[0]
+        out[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost")}
+    return out
+
+
 def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
@@ -229,18 +257,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
                     "scenarios": {}, "records": {}}
     start = time.time()
-    records: dict[tuple, list[dict]] = {}
-    if ray is not None:
-        from millvib_env.distributed import run_jobs
-
-        jobs = [{"name": n, "task": t.name, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
-                for n, s in units for i in range(0, len(plants), CHUNK)]
-        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {t.name} (ray)")
-        for job, part in zip(jobs, parts):
-            records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
-    else:
-        for unit in tqdm(units, desc=f"benchmark {t.name}", unit="run", disable=not progress):
-            records[unit] = _run(loaded[unit], plants, t.name)
+    records = _collect_records(units, loaded, plants, t.name, env_id, ray, progress)
     for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
                      unit="controller", disable=not progress, leave=False):
         recs = [r for (n, _), part in records.items() if n == name for r in part]
@@ -250,12 +267,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
         result["controllers"][name] = summary
         result["records"][name] = recs
         if scenarios:
-            sc_recs = {}
-            for sc in distinct_plant_scenarios():
-                rec = _run(first, [plants[0]], t.name, scenario=sc)[0]
-                sc_recs[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged",
-                                                   "cost")}
-            result["scenarios"][name] = sc_recs
+            result["scenarios"][name] = _scenario_records(first, plants[0], t.name)
     if progress:
         print(f"benchmark {t.name}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result)
@@ -442,6 +454,14 @@ def format_table(result: dict) -> str:
     room_md = format_room(result)
     if room_md:
         lines += ["", room_md]
+    lines += _vibration_rows(ctrls) + _actuator_rows(result) + _spread_rows(ctrls) + _estimate_rows(ctrls)
+    lines += _scenario_rows(result)
+    return "\n".join(lines)
+
+
+def _vibration_rows(ctrls: dict) -> list[str]:
+    """The table's vibration detail: severity quantiles, where in the episode, the bands, ISO zones."""
+    lines: list[str] = []
     lines += ["", "Vibration detail (pooled episodes):", "",
               "| controller | severity median | p95 | first 0.1 s | rest | pump line | 10-100 Hz | zones A/B/C/D |",
               "|---|---|---|---|---|---|---|---|"]
@@ -451,6 +471,13 @@ def format_table(result: dict) -> str:
                      f"{s.get('severity_start_mean', math.nan):.3g} | {s.get('severity_rest_mean', math.nan):.3g} | "
                      f"{s.get('pump_line_mean', math.nan):.3g} | {s.get('low_band_mean', math.nan):.3g} | "
                      f"{z['A']}/{z['B']}/{z['C']}/{z['D']} |")
+    return lines
+
+
+def _actuator_rows(result: dict) -> list[str]:
+    """The actuator's table (where every controller has its command record)."""
+    ctrls = result["controllers"]
+    lines: list[str] = []
     if all("command" in s for s in ctrls.values()):
         loop = result.get("loop") or {}
         u_max = loop.get("u_max_v")
@@ -467,6 +494,12 @@ def format_table(result: dict) -> str:
                          f"{100 * s['command']['share_at_limit']:.1f} % | {1e3 * st['median']:.3g} / "
                          f"{1e3 * st['p95']:.3g} / {1e3 * st['max']:.3g} | {fl['median']:.3g} / {fl['p95']:.3g} / "
                          f"{fl['max']:.3g} | {pr['min'] / 1e6:.3g}-{pr['max'] / 1e6:.3g} | {s['n_diverged']} |")
+    return lines
+
+
+def _spread_rows(ctrls: dict) -> list[str]:
+    """Each multi-seed agent's mean cost and CVaR-20 per training seed."""
+    lines: list[str] = []
     spread = {n: s["per_seed"] for n, s in ctrls.items() if len(s.get("per_seed", [])) > 1}
     if spread:
         lines += ["", "Spread over training seeds (mean cost / CVaR-20 of each seed on the same plants):", "",
@@ -475,10 +508,22 @@ def format_table(result: dict) -> str:
             cells = ", ".join(f"s{p['seed']}: {p['cost_mean']:.3g} / {p['cost_cvar20']:.3g}" for p in per)
             means = [p["cost_mean"] for p in per]
             lines.append(f"| {name} | {cells} | {min(means):.3g}-{max(means):.3g} |")
-    est = {n: s for n, s in result["controllers"].items() if "c1_log_error_mean" in s}
+    return lines
+
+
+def _estimate_rows(ctrls: dict) -> list[str]:
+    """The estimation error of the controllers that estimate the plant (pid-adaptive)."""
+    lines: list[str] = []
+    est = {n: s for n, s in ctrls.items() if "c1_log_error_mean" in s}
     for name, s in est.items():
         lines.append(f"\n{name}: mean estimation error over the episodes |log10(estimate / true)|: c1 "
                      f"{s['c1_log_error_mean']:.3f}, Ct {s['ct_log_error_mean']:.3f} (decades)")
+    return lines
+
+
+def _scenario_rows(result: dict) -> list[str]:
+    """The named scenarios' table: severity and tracking per scenario and controller."""
+    lines: list[str] = []
     if result.get("scenarios"):
         names = list(result["scenarios"])
         scen = list(next(iter(result["scenarios"].values())))
@@ -491,7 +536,7 @@ def format_table(result: dict) -> str:
                 cells.append(("diverged " if r["diverged"] else "") + f"{r['severity_mm_s']:.3g} / "
                              f"{r['tracking_rms_um']:.3g}")
             lines.append(f"| {sc} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return lines
 
 
 def public_json(result: dict) -> dict:

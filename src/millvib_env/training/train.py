@@ -238,6 +238,29 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
         return _train(algo, env_id, **kwargs)
 
 
+def _check_id_runs_task(env_id: str, task) -> None:
+    """A per-task env id (`envs.batch.ID_CONFIGS`) trains only its own task."""
+    from millvib_env.envs.batch import ID_CONFIGS
+
+    if ID_CONFIGS.get(env_id, task.config) != task.config:
+        raise ValueError(f"--env {env_id} runs config {ID_CONFIGS[env_id]!r}, not task {task.name!r}'s "
+                         f"({task.config!r}): pass --task {ID_CONFIGS[env_id]} or a generic id")
+
+
+def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs: dict | None, env_id: str,
+                 env_kwargs: dict, what: str):
+    """A new model on `venv` (wrapped in VecNormalize where the file asks), starting at the zero action where
+    that action is a controller; returns (model, venv)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if norm_kwargs is not None:
+        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
+    model = _new_model(cls, policy, venv, seed, run, hp, what)
+    if _zero_action_is_a_controller(env_id, env_kwargs):
+        start_at_zero_action(model)
+    return model, venv
+
+
 def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "startup", seed: int = 0,
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
@@ -267,11 +290,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
 
     cls = algo_class(algo, backend)
     the_task = get_task(task)
-    from millvib_env.envs.batch import ID_CONFIGS
-
-    if ID_CONFIGS.get(env_id, the_task.config) != the_task.config:
-        raise ValueError(f"--env {env_id} runs config {ID_CONFIGS[env_id]!r}, not task {the_task.name!r}'s "
-                         f"({the_task.config!r}): pass --task {ID_CONFIGS[env_id]} or a generic id")
+    _check_id_runs_task(env_id, the_task)
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
     n_envs = int(hp.pop("n_envs"))
@@ -298,11 +317,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     if resume:
         model, venv, done_steps = _resume_from(cls, ckpt_dir, venv, norm_kwargs is not None, str(run / "tb"))
     else:
-        if norm_kwargs is not None:
-            venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
-        model = _new_model(cls, policy, venv, seed, run, hp, f"{algo} on {env_id} ({config or 'the default file'})")
-        if _zero_action_is_a_controller(env_id, env_kwargs):
-            start_at_zero_action(model)
+        model, venv = _fresh_model(cls, policy, venv, seed, run, hp, norm_kwargs, env_id, env_kwargs,
+                                   f"{algo} on {env_id} ({config or 'the default file'})")
         done_steps = 0
     if backend == "sbx":
         jit_noise_key_split(model)
