@@ -82,3 +82,18 @@ def test_the_wait_policy_is_set_before_numbas_pool_starts_and_a_users_setting_is
     assert policy == "PASSIVE" and not started_before and n == 2
     user_policy, started_before, _, _ = _pool_settings(OMP_WAIT_POLICY="ACTIVE")
     assert user_policy == "ACTIVE" and not started_before
+
+
+def test_the_process_that_creates_a_versions_cache_says_once_that_it_compiles(tmp_path, monkeypatch, capsys):
+    import numba
+
+    from millvib_env import _numba_cache
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(numba.config, "CACHE_DIR", numba.config.CACHE_DIR)  # restored after the test
+    for _ in range(2):
+        _numba_cache.configure()
+        monkeypatch.delenv("NUMBA_CACHE_DIR")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "compile on first use" in lines[0] and str(tmp_path) in lines[0], lines

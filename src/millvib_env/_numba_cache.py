@@ -8,7 +8,8 @@ code recompiles everything once and a stale kernel is never loaded. The compile 
 paid once per source version, not per process. Versions keep their own folders (two installed
 versions never delete each other's cache); folders unused for 30 days are pruned. Where the home
 folder cannot be written (a read-only install in a container), the cache goes to a folder under
-the system's temporary directory, with a one-line notice.
+the system's temporary directory, with a one-line notice. The process that creates a version's folder
+says, in one line on stderr, that its first simulation compiles (about a minute, once).
 Set NUMBA_CACHE_DIR yourself to override.
 """
 
@@ -38,6 +39,7 @@ def configure() -> None:
     name = f"numba-{digest.hexdigest()[:16]}"
     target = None
     for root in _candidate_roots():
+        fresh = not (root / name).exists()
         try:
             (root / name).mkdir(parents=True, exist_ok=True)
             probe = root / name / ".write-test"
@@ -50,6 +52,9 @@ def configure() -> None:
         if root != _home_root():
             print(f"millvib-env: {_home_root()} is not writable; compiled code is cached in {target}",
                   file=sys.stderr)
+        if fresh:  # the first process of this version: say why its first simulation waits
+            print(f"millvib-env: first run of this version: the plant kernels compile on first use (about a minute, "
+                  f"once; cached in {target})", file=sys.stderr)
         _prune(root, keep=target)
         break
     if target is None:
