@@ -5,7 +5,7 @@ import pytest
 import millvib_env
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import REFERENCE
-from millvib_env.envs.config import named_gains
+from millvib_env.control.named import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.training.evaluate import run_episodes
@@ -47,21 +47,25 @@ def test_the_relative_action_at_zero_runs_the_same_trajectory_as_the_fixed_polic
         assert rec["severity_mm_s"] == info["severity"] and rec["tracking_rms_um"] == info["tracking_rms_um"]
 
 
-def test_a_named_base_is_resolved_from_the_tasks_control_config_by_the_env_and_by_train():
-    from millvib_env.training.train import resolve_named_gains
+def test_a_named_base_is_resolved_from_the_tasks_control_config_before_the_env():
+    import gymnasium as gym
 
-    cfg = load_env_config("rolling", actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
-    assert list(GainMap.from_config(cfg).base) == named_gains("pid-pf-robust", "rolling")
-    valve = load_env_config("change", actions={"residual_gains": "pid-pf-ff"})  # as the zoo passes a file's env_kwargs
-    assert valve["actions"]["residual_gains"] == named_gains("pid-pf-ff", "change")
+    from millvib_env.control.named import resolve_named_gains
+
+    env = gym.make("MillVib-GainSchedule-v0", config="rolling",  # as the zoo passes a file's env_kwargs
+                   actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
+    assert list(env.unwrapped.core.gain_map.base) == named_gains("pid-pf-robust", "rolling")
     kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
                                           "residual_gains": "pid-pf-ff"}}, "rolling")
     assert kw["actions"]["relative"]["base"] == named_gains("pid-pf-robust", "rolling")  # the card records numbers
     assert len(kw["actions"]["residual_gains"]) == 5
+    assert resolve_named_gains({"config": "change", "actions": {"residual_gains": "pid-pf-ff"}}, version="v1")[
+        "actions"]["residual_gains"] == named_gains("pid-pf-ff", "change", "v1")  # the task its config names
     with pytest.raises(ValueError, match="gains 'bogus' unknown"):
         resolve_named_gains({"actions": {"residual_gains": "bogus"}}, "rolling")
-    with pytest.raises(ValueError, match="residual_gains"):
-        load_env_config("rolling", actions={"residual_gains": "bogus"})
+    for actions in ({"residual_gains": "pid-pf-ff"}, {"relative": {"base": "pid-pf-robust"}}):
+        with pytest.raises(ValueError, match="takes gains as numbers"):  # the env layer itself: numbers only
+            load_env_config("rolling", actions=actions)
 
 
 def test_a_base_of_the_wrong_length_is_an_error():

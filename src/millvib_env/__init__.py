@@ -31,9 +31,9 @@ def _register_envs() -> None:
                     f"MillVib-{name}-{config.capitalize()}-{version}"
                 kwargs = {"env_version": version} if config is None else {"env_version": version, "config": config}
                 if env_id not in gymnasium.registry:  # gym.make_vec(..., vectorization_mode="vector_entry_point"):
-                    gymnasium.register(id=env_id, entry_point=f"millvib_env.envs.base:{name}Env",  # the batched
-                                       vector_entry_point=f"millvib_env.envs.vector:{name}VectorEnv",  # engine
-                                       kwargs=kwargs)
+                    gymnasium.register(id=env_id, entry_point=f"millvib_env._entry:{name}Env",  # the batched
+                                       vector_entry_point=f"millvib_env._entry:{name}VectorEnv",  # engine
+                                       kwargs=kwargs)  # (_entry: named gain sets resolved, then envs.base / vector)
 
 
 _register_envs()
@@ -41,9 +41,11 @@ _register_envs()
 
 def make_vec_env(env_id: str, n_envs: int = 1, seed: int | None = None, **env_kwargs):
     """Native batched Stable-Baselines3 VecEnv (see `millvib_env.envs.vec_env.make_vec_env`)."""
+    from millvib_env.control.named import resolve_named_gains
+    from millvib_env.envs.batch import env_version
     from millvib_env.envs.vec_env import make_vec_env as _make
 
-    return _make(env_id, n_envs, seed, **env_kwargs)
+    return _make(env_id, n_envs, seed, **resolve_named_gains(env_kwargs, version=env_version(env_id)))
 
 
 __all__ += ["make_vec_env"]

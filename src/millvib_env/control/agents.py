@@ -149,7 +149,12 @@ class AgentPolicy(Controller):
         self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
         self.task = self.card.get("task", "startup")
-        self.env_kwargs = dict(self.card.get("env_kwargs", {}))
+        from millvib_env.control.named import resolve_named_gains
+        from millvib_env.envs.batch import env_version
+
+        # a card may name the gain set its policy builds on (``residual_gains: pid-pf-robust``): numbers from here on
+        self.env_kwargs = resolve_named_gains(self.card.get("env_kwargs", {}), task=self.task,
+                                              version=env_version(self.env_id))
         algo = str(self.card["algo"]).lower()
         self.backend = str(self.card.get("backend", "sb3"))
         cls = algo_class(algo, self.backend)

@@ -33,7 +33,7 @@ class Baseline:
     build: Builder
     #: it needs the sampled loop (environment version v1)
     loop_only: bool = False
-    #: one fixed gain set, which an env config or hyperparameter file may name (`envs.config.NAMED_GAINS`)
+    #: one fixed gain set, which env kwargs or a hyperparameter file may name (`control.named`)
     named_gains: bool = False
     #: the environment it acts in: "gain" (it sets the PID's gains) or "valve" (it commands the valve)
     env_mode: str = "gain"

@@ -3,22 +3,25 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.envs.config import checked_gains
-from millvib_env.envs.config import control_config_path as _config_path
 from millvib_env.tasks import get_task
 
 __all__ = ["control_config_path", "load_control_config", "control_entry", "entry_gains", "oracle_table"]
 
 
-def control_config_path(task: str, version: str = "v0"):
-    """Where a task's tuned baselines live (`envs.config.control_config_path`), for a task name or alias."""
-    return _config_path(get_task(task).name, version)
+def control_config_path(task: str, version: str = "v0") -> Path:
+    """Where a task's tuned baselines live (a task name or alias): configs/control/<task>.yaml for v0 (the analog
+    loop), configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
+    folder = config_dir() / "control"
+    return (folder if version == "v0" else folder / version) / f"{get_task(task).name}.yaml"
 
 
 def load_control_config(task: str = "startup", version: str = "v0") -> dict[str, Any]:

@@ -380,9 +380,14 @@ def _gain_bounds(path: str, value: Any) -> None:
         _fail(path, value, "need low < high")
 
 
+#: what a named gain set in an env config needs (the env layer takes numbers only)
+_NAMED_HINT = ("the env layer takes gains as numbers; a named gain set is resolved before it (gym.make, make_vec_env "
+               "and the CLI do that; in Python: millvib_env.control.named.resolve_named_gains)")
+
+
 def _residual_gains(path: str, value: Any) -> None:
     if isinstance(value, str):
-        _fail(path, value, f"a named gain set must be one of {list(NAMED_GAINS)}")
+        _fail(path, value, _NAMED_HINT)
     if not isinstance(value, (list, tuple)) or len(value) not in (3, 4, 5):
         _fail(path, value, "must be [KP, KI, KD], [KP, KI, KD, KPL] or [KP, KI, KD, KPL, KFF], each >= 0")
     for k, g in enumerate(value):
@@ -396,6 +401,8 @@ def _relative(path: str, value: Any) -> None:
 
 
 def _base_gains(path: str, value: Any) -> None:
+    if isinstance(value, str):
+        _fail(path, value, _NAMED_HINT)
     if not isinstance(value, (list, tuple)) or not 3 <= len(value) <= 5:
         _fail(path, value, "must be [KP, KI, KD] plus KPL and KFF where switched on, each >= 0 (> 0 where its "
                            "decades > 0)")
@@ -411,43 +418,6 @@ def _decades(path: str, value: Any) -> None:
         _number(path, value, lo=0.0, hi=6.0)
 
 
-#: the fixed-gain baselines whose gains a config may name (``residual_gains: pid-pf-robust``,
-#: ``relative: {base: pid-pf-ff}``): read from configs/control/<task>.yaml, the task being the one
-#: whose environment config this is (startup for any other config)
-NAMED_GAINS = ("pid-paper", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff")
-
-
-def control_config_path(task: str, version: str = "v0") -> Path:
-    """Where a task's tuned baselines live: configs/control/<task>.yaml for v0 (the analog loop),
-    configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
-    folder = config_dir() / "control"
-    return (folder if version == "v0" else folder / version) / f"{task}.yaml"
-
-
-def named_gains(name: str, task: str = "startup", version: str = "v0", _via: tuple = ()) -> list[float]:
-    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`, from its
-    control config (`control_config_path`; the paper's PID from MillParams' module), checked: 3-5 finite
-    numbers >= 0."""
-    from millvib_env.params import PAPER_GAINS
-
-    if name not in NAMED_GAINS:
-        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
-    if name == "pid-paper":
-        return [float(g) for g in PAPER_GAINS.to_array()]
-    path = control_config_path(task, version)
-    where = f"{path.relative_to(config_dir().parent) if path.is_relative_to(config_dir().parent) else path} {name}"
-    if task in _via:
-        raise ValueError(f"{where}: from_task runs in a cycle ({' -> '.join(_via + (task,))}); one of them must "
-                         "hold the gains itself")
-    table = load_yaml(path, "control config")
-    entry = table.get(name) if isinstance(table, dict) else None
-    if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
-            entry["from_task"] != task:
-        return named_gains(name, entry["from_task"], version, _via + (task,))
-    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
-                         f"run millvib tune --task {task} --env-version {version} --only {name} --write-config")
-
-
 def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
     """A fixed controller's gains, checked: 3-5 finite numbers >= 0 (KP, KI, KD[, KPL[, KFF]])."""
     if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
@@ -457,34 +427,6 @@ def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
         if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
             raise ValueError(f"{where}[{k}] = {g!r} is invalid: a finite number >= 0")
     return [float(g) for g in gains]
-
-
-def _task_of(config: Any) -> str:
-    """The task whose environment config `config` names (startup for any other config)."""
-    if isinstance(config, str):
-        try:
-            from millvib_env.tasks import list_tasks, get_task
-
-            name = CONFIG_ALIASES.get(config, config)
-            for t in list_tasks():
-                if get_task(t).config == name:
-                    return t
-        except ValueError:
-            pass
-    return "startup"
-
-
-def _resolve_names(data: dict, task: str, version: str = "v0") -> None:
-    acts = data.get("actions")
-    if not isinstance(acts, dict):
-        return
-    if isinstance(acts.get("residual_gains"), str) and acts["residual_gains"] in NAMED_GAINS:
-        acts["residual_gains"] = named_gains(acts["residual_gains"], task, version)
-    rel = acts.get("relative")
-    if isinstance(rel, dict) and isinstance(rel.get("base"), str):
-        if rel["base"] not in NAMED_GAINS:
-            _fail("actions.relative.base", rel["base"], f"a list of gains or a named gain set {list(NAMED_GAINS)}")
-        acts["relative"] = {**rel, "base": named_gains(rel["base"], task, version)}
 
 
 _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
@@ -586,7 +528,6 @@ def load_env_config(config: str | Path | Mapping | None = "startup", *, version:
     data = _merge(data, overrides)
     for key in _OPTIONAL_KEYS:
         data.setdefault(key, None)
-    _resolve_names(data, _task_of(config), version)
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown env config key(s) {sorted(unknown, key=repr)}; known: {sorted(_TOP_KEYS)}")

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._paths import write_text_atomic
+from millvib_env.control.named import resolve_named_gains
 from millvib_env.tasks import get_task
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
@@ -69,7 +70,8 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: str, seeds: 
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.loop.kernel import K_UCTRL
 
-    venv = EpisodeBatch(env_id, len(seeds), **{"config": get_task(task).config, **env_kwargs})
+    venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains({"config": get_task(task).config, **env_kwargs},
+                                                                  task=task, version="v1"))
     core = venv.core
     obs = venv.reset(seeds)
     for oracle in (teacher, baseline):

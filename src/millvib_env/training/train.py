@@ -28,6 +28,7 @@ import numpy as np
 from millvib_env._paths import write_text_atomic
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.control.manifest import EVAL_CURVE
+from millvib_env.control.named import resolve_named_gains
 from millvib_env.envs.batch import env_version
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
@@ -37,25 +38,6 @@ from millvib_env.control.agents import ALGOS  # noqa: E402 (one list of algorith
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
-
-
-def resolve_named_gains(env_kwargs: dict, task: str, version: str = "v0") -> dict:
-    """`env_kwargs` with gain sets named by a baseline (``residual_gains: pid-pf-robust``,
-    ``relative: {base: pid-pf-ff}``) replaced by that baseline's gains on `task` in environment version
-    `version` (`envs.config.control_config_path`): a hyperparameter file names the controller it builds on
-    once, and the model card records the numbers."""
-    from millvib_env.envs.config import named_gains
-
-    acts = env_kwargs.get("actions")
-    if not isinstance(acts, dict):
-        return env_kwargs
-    acts = dict(acts)
-    if isinstance(acts.get("residual_gains"), str):
-        acts["residual_gains"] = named_gains(acts["residual_gains"], task, version)
-    rel = acts.get("relative")
-    if isinstance(rel, dict) and isinstance(rel.get("base"), str):
-        acts["relative"] = {**rel, "base": named_gains(rel["base"], task, version)}
-    return {**env_kwargs, "actions": acts}
 
 
 def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **kwargs):

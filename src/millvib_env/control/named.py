@@ -1,0 +1,108 @@
+"""Named gain sets: a hyperparameter file, a model card or ``gym.make``'s keyword arguments may name a fixed-gain
+baseline where the env takes gains (``actions: {residual_gains: pid-pf-ff}``, ``relative: {base: pid-pf-robust}``).
+The name is resolved here, in the control layer, to that baseline's gains on the task whose config the keyword
+arguments name (startup for any other config) in the environment's version; the env layer takes numbers only.
+
+`resolve_named_gains` is applied where keyword arguments enter: the registered env ids' entry points
+(`millvib_env._entry`), `millvib_env.make_vec_env`, an agent's card (`control.agents.AgentPolicy`), `train` and
+`distill`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from millvib_env._paths import config_dir
+from millvib_env._yaml import load_yaml
+from millvib_env.control.registry import REGISTRY
+from millvib_env.control.tuned import control_config_path
+from millvib_env.envs.config import CONFIG_ALIASES, checked_gains
+
+__all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains"]
+
+#: the fixed-gain baselines whose gains may be named (`control.registry.Baseline.named_gains`)
+NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
+
+
+def named_gains(name: str, task: str = "startup", version: str = "v0", _via: tuple = ()) -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`, from its control
+    config (`control.tuned.control_config_path`; the paper's PID from MillParams' module), checked: 3-5 finite
+    numbers >= 0. An entry with ``from_task`` takes that task's gains (a cycle is refused in one line)."""
+    from millvib_env.params import PAPER_GAINS
+
+    if name not in NAMED_GAINS:
+        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
+    if name == "pid-paper":
+        return [float(g) for g in PAPER_GAINS.to_array()]
+    path = control_config_path(task, version)
+    where = f"{path.relative_to(config_dir().parent) if path.is_relative_to(config_dir().parent) else path} {name}"
+    if task in _via:
+        raise ValueError(f"{where}: from_task runs in a cycle ({' -> '.join(_via + (task,))}); one of them must "
+                         "hold the gains itself")
+    table = load_yaml(path, "control config")
+    entry = table.get(name) if isinstance(table, dict) else None
+    if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
+            entry["from_task"] != task:
+        return named_gains(name, entry["from_task"], version, _via + (task,))
+    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
+                         f"run millvib tune --task {task} --env-version {version} --only {name} --write-config")
+
+
+def task_of_config(config: Any) -> str:
+    """The task whose environment config `config` names (startup for any other config)."""
+    if isinstance(config, str):
+        from millvib_env.tasks import get_task, list_tasks
+
+        name = CONFIG_ALIASES.get(config, config)
+        try:
+            for t in list_tasks():
+                if get_task(t).config == name:
+                    return t
+        except ValueError:
+            pass
+    return "startup"
+
+
+def _resolve_actions(acts: Any, task: str, version: str) -> Any:
+    """An ``actions`` section with its named gain sets replaced by numbers (a new dict; anything else as given,
+    for the env's own checks to refuse)."""
+    if not isinstance(acts, Mapping):
+        return acts
+    acts = dict(acts)
+    if isinstance(acts.get("residual_gains"), str):
+        acts["residual_gains"] = named_gains(acts["residual_gains"], task, version)
+    rel = acts.get("relative")
+    if isinstance(rel, Mapping) and isinstance(rel.get("base"), str):
+        acts["relative"] = {**rel, "base": named_gains(rel["base"], task, version)}
+    return acts
+
+
+def has_named_gains(env_kwargs: Mapping) -> bool:
+    """Whether keyword arguments name a gain set anywhere `resolve_named_gains` looks (cheap: no import)."""
+    sections = [env_kwargs.get("actions")]
+    if isinstance(env_kwargs.get("config"), Mapping):
+        sections.append(env_kwargs["config"].get("actions"))
+    for acts in sections:
+        if isinstance(acts, Mapping):
+            rel = acts.get("relative")
+            if isinstance(acts.get("residual_gains"), str) or (isinstance(rel, Mapping) and
+                                                                isinstance(rel.get("base"), str)):
+                return True
+    return False
+
+
+def resolve_named_gains(env_kwargs: Mapping, task: str | None = None, version: str | None = None) -> dict:
+    """`env_kwargs` (an env's keyword arguments, a card's or a hyperparameter file's ``env_kwargs``) with every
+    named gain set replaced by that baseline's gains: in ``actions`` and in a mapping ``config``'s ``actions``.
+    `task` defaults to the task whose config ``env_kwargs["config"]`` names, `version` to
+    ``env_kwargs["env_version"]`` (else v0). Returns a new dict; `env_kwargs` is left as it was."""
+    out = dict(env_kwargs)
+    if not has_named_gains(out):
+        return out
+    task = task if task is not None else task_of_config(out.get("config"))
+    version = version if version is not None else str(out.get("env_version") or "v0")
+    if "actions" in out:
+        out["actions"] = _resolve_actions(out["actions"], task, version)
+    if isinstance(out.get("config"), Mapping) and "actions" in out["config"]:
+        out["config"] = {**out["config"], "actions": _resolve_actions(out["config"]["actions"], task, version)}
+    return out
