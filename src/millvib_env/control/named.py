@@ -12,11 +12,9 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from millvib_env._paths import config_dir
-from millvib_env._yaml import load_yaml
 from millvib_env.control.registry import REGISTRY
-from millvib_env.control.tuned import control_config_path
-from millvib_env.envs.config import CONFIG_ALIASES, checked_gains
+from millvib_env.control.tuned import control_entry, entry_gains
+from millvib_env.envs.config import CONFIG_ALIASES
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains"]
 
@@ -24,28 +22,17 @@ __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "r
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
-def named_gains(name: str, task: str = "startup", version: str = "v0", _via: tuple = ()) -> list[float]:
-    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`, from its control
-    config (`control.tuned.control_config_path`; the paper's PID from MillParams' module), checked: 3-5 finite
-    numbers >= 0. An entry with ``from_task`` takes that task's gains (a cycle is refused in one line)."""
+def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`: its control config
+    entry (`control.tuned.control_entry`, which follows ``from_task``), checked (`control.tuned.entry_gains`); the
+    paper's PID from MillParams' module."""
     from millvib_env.params import PAPER_GAINS
 
     if name not in NAMED_GAINS:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
     if name == "pid-paper":
         return [float(g) for g in PAPER_GAINS.to_array()]
-    path = control_config_path(task, version)
-    where = f"{path.relative_to(config_dir().parent) if path.is_relative_to(config_dir().parent) else path} {name}"
-    if task in _via:
-        raise ValueError(f"{where}: from_task runs in a cycle ({' -> '.join(_via + (task,))}); one of them must "
-                         "hold the gains itself")
-    table = load_yaml(path, "control config")
-    entry = table.get(name) if isinstance(table, dict) else None
-    if isinstance(entry, dict) and "from_task" in entry and isinstance(entry["from_task"], str) and \
-            entry["from_task"] != task:
-        return named_gains(name, entry["from_task"], version, _via + (task,))
-    return checked_gains(entry.get("gains") if isinstance(entry, dict) else None, f"{where}.gains",
-                         f"run millvib tune --task {task} --env-version {version} --only {name} --write-config")
+    return entry_gains(task, name, control_entry(task, name, version), version)
 
 
 def task_of_config(config: Any) -> str:

@@ -47,7 +47,7 @@ def paper_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: Ga
 def fixed_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """One fixed gain set, from the task's control config entry `name` (its ``gains`` and ``how``)."""
     entry = control_entry(task, name, version)
-    return FixedGainPolicy(name, entry_gains(task, name, entry), gain_map, entry.get("how", ""))
+    return FixedGainPolicy(name, entry_gains(task, name, entry, version), gain_map, entry.get("how", ""))
 
 
 def gain_oracle(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:

@@ -52,10 +52,12 @@ def control_entry(task: str, name: str, version: str = "v0", _via: tuple = ()) -
     return entry
 
 
-def entry_gains(task: str, name: str, entry: dict) -> list[float]:
-    """A fixed-gain entry's gains, checked (`envs.config.checked_gains`)."""
+def entry_gains(task: str, name: str, entry: dict, version: str = "v0") -> list[float]:
+    """A fixed-gain entry's gains, checked (`envs.config.checked_gains`): 3-5 finite numbers >= 0."""
     return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
-                         f"configs/control/{get_task(task).name}.yaml {name}.gains")
+                         f"{control_config_path(task, version)} {name}.gains",
+                         f"run millvib tune --task {get_task(task).name} --env-version {version} --only {name} "
+                         "--write-config")
 
 
 def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> GainTable:
