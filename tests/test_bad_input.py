@@ -255,17 +255,19 @@ def test_a_preset_with_a_bad_value_names_the_field(field, value, tmp_path):
 
 
 # --- the public API -------------------------------------------------------------------------------
-WRONG = [None, "abc", -1, float("nan"), float("inf"), [], {}, True, object(), [1.0, 2.0]]
+WRONG = [None, "abc", -1, float("nan"), float("inf"), 10 ** 400, [], {}, True, object(), [1.0, 2.0]]
 
 
 def _api_calls():
     from millvib_env.analysis.dynamics import classify_motion
     from millvib_env.analysis.linear import critical_kp, linearize, spectral_abscissa, stability_map
+    from millvib_env.control.adaptive import EstimatorSettings
     from millvib_env.control.factory import load_controller
     from millvib_env.control.lqr import LQRWeights, lqr_gains
     from millvib_env.envs.vec_env import make_vec_env
     from millvib_env.params import load_preset, parse_overrides
     from millvib_env.plant.integrate import simulate, simulate_batch
+    from millvib_env.plant.model import PlantChange
     from millvib_env.severity import (band_levels, band_levels_rows, iso_zone, vibration_severity,
                                       vibration_severity_rows)
     from millvib_env.training.benchmark import run_benchmark
@@ -291,6 +293,11 @@ def _api_calls():
                              ["band", "low_band", "line_hz", "workers"]),
         "iso_zone": (lambda **k: iso_zone(**{"severity_mm_s": 1.0, **k}), ["severity_mm_s", "machine_class"]),
         "SimResult.severity": (lambda **k: run.severity(**k), ["t_start", "quantity", "band"]),
+        "SimResult.tracking_rms": (lambda **k: run.tracking_rms(**k), ["t_start"]),
+        "PlantChange": (lambda **k: PlantChange(**{"t0_s": 0.1, "duration_s": 0.1, "c1_factor": 0.5,
+                                                  "ct_factor": 2.0, **k}),
+                        ["t0_s", "duration_s", "c1_factor", "ct_factor"]),
+        "EstimatorSettings": (lambda **k: EstimatorSettings(**k), ["tau_s", "highpass_hz", "min_info"]),
         "classify_motion": (lambda **k: classify_motion(**{"result": run, **k}), ["result", "tail", "max_period"]),
         "linearize": (lambda **k: linearize(**{"params": p, **k}), ["params", "xd"]),
         "spectral_abscissa": (lambda **k: spectral_abscissa(**{"params": p, "gains": g, **k}),
@@ -403,19 +410,25 @@ def test_a_config_file_damaged_anywhere_is_read_whole_or_refused_in_one_line(dat
         assert "\n" not in str(err).strip() and str(err).strip(), (name, lines[max(0, i - 1):i + 2], str(err))
 
 
-#: what the randomized run of the property above found (HYPOTHESIS_PROFILE=fuzz), kept as fixed cases
-FOUND = [("severity.yaml", "default_class", "[]")]
+#: what the randomized run of the property above found (HYPOTHESIS_PROFILE=fuzz), kept as fixed cases:
+#: (file, the section the line is in or "" for the top level, how the line starts, its damaged text, what
+#: the refusal names)
+FOUND = [("severity.yaml", "", "default_class:", "default_class: []", "default_class"),
+         ("control/v1/rolling.yaml", "pid-pf-robust:", "  - ", "  - " + "9" * 400, r"pid-pf-robust\.gains\[0\]")]
 
 
-@pytest.mark.parametrize("name, key, value", FOUND)
-def test_what_the_damage_fuzz_found_is_refused_in_one_line(name, key, value, damaged_configs):
+@pytest.mark.parametrize("name, section, start, damaged, names", FOUND)
+def test_what_the_damage_fuzz_found_is_refused_in_one_line(name, section, start, damaged, names, damaged_configs):
     from millvib_env.envs import config as env_config
 
     path = damaged_configs / name
-    lines = [f"{key}: {value}" if line.startswith(f"{key}:") else line for line in path.read_text().splitlines()]
+    lines = path.read_text().splitlines()
+    first = lines.index(section) + 1 if section else 0
+    k = next(j for j in range(first, len(lines)) if lines[j].startswith(start))  # the line must still exist
+    lines[k] = damaged
     path.write_text("\n".join(lines) + "\n")
     for cached in (severity._load_severity_config, tasks._load, env_config._task_config):
         cached.cache_clear()
-    with pytest.raises(ValueError, match=key) as info:
+    with pytest.raises(ValueError, match=names) as info:
         _loaders()[name]()
     assert "\n" not in str(info.value)

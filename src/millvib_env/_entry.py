@@ -19,15 +19,18 @@ def _resolved(kwargs: dict[str, Any]) -> dict[str, Any]:
 
 
 def _entry(cls: type, vector_env: bool = False) -> Callable:
+    make: Callable[..., Any]
     if vector_env:
-        def make(num_envs: int = 1, **kwargs: Any):
+        def make_vector(num_envs: int = 1, **kwargs: Any):
             return cls(num_envs, **_resolved(kwargs))
+        make = make_vector
     else:
-        def make(**kwargs: Any):
+        def make_single(**kwargs: Any):
             return cls(**_resolved(kwargs))
+        make = make_single
     make.__name__ = make.__qualname__ = cls.__name__
     make.__doc__ = cls.__doc__
-    make.__wrapped__ = cls  # type: ignore[attr-defined]
+    make.__wrapped__ = cls  # type: ignore[union-attr]
     return make
 
 

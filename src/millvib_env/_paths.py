@@ -9,7 +9,7 @@ import tempfile
 import time
 from importlib import resources
 from pathlib import Path
-from typing import Iterator
+from typing import Collection, Iterator
 
 _REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -112,7 +112,7 @@ def _inside(a: Path, b: Path) -> bool:
 
 
 def check_result_folder(path: str | os.PathLike | None, flag: str, command: str, *,
-                        others: tuple = (), own_files: frozenset | None = None) -> Path | None:
+                        others: tuple = (), own_files: Collection[str] | None = None) -> Path | None:
     """Check, before any work, that the result folder `path` may be (re)written by `command` as a
     whole: it is new, empty, or holds only a previous result of the same command (its
     `RESULT_MARKER` lists every entry in it, or, with `own_files`, every entry is one of those
@@ -197,7 +197,7 @@ def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False,
             entries = sorted(e.name for e in tmp.iterdir() if e.name != RESULT_MARKER)
             (tmp / RESULT_MARKER).write_text(json.dumps({"command": command, "entries": entries}, indent=1))
         os.chmod(tmp, 0o777 & ~_umask())
-        olds = []
+        olds: list[Path] = []
         try:
             _swap_in(tmp, path, olds)
         finally:

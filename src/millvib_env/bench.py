@@ -20,7 +20,7 @@ import platform
 import statistics
 import time
 import warnings
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -35,8 +35,10 @@ __all__ = ["bench_plant", "bench_envs", "random_plants", "format_plant_bench", "
 def random_plants(n: int, seed: int = 0, kp_range: tuple[float, float] = (1e4, 4e6)):
     """n plants and PID gains log-uniform over c1 in [1.25e5, 2.25e6], Ct in [5e-16, 5e-9], KP."""
     rng = np.random.default_rng(seed)
-    c1 = np.exp(rng.uniform(*np.log(studied_range("c1")), n))
-    ct = np.exp(rng.uniform(*np.log(studied_range("Ct")), n))
+    c1_lo, c1_hi = np.log(studied_range("c1"))
+    ct_lo, ct_hi = np.log(studied_range("Ct"))
+    c1 = np.exp(rng.uniform(c1_lo, c1_hi, n))
+    ct = np.exp(rng.uniform(ct_lo, ct_hi, n))
     kp = np.exp(rng.uniform(np.log(kp_range[0]), np.log(kp_range[1]), n))
     return [MillParams(c1=a, Ct=b) for a, b in zip(c1, ct)], [PIDGains(k, 1e-3) for k in kp]
 
@@ -65,7 +67,7 @@ def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, 
     if progress:
         from tqdm.auto import tqdm
         iterator = tqdm(cases, desc="bench: paper cases", unit="case")
-    rows = []
+    rows: list[dict[str, Any]] = []
     for label, params, gains in iterator:
         ref_s = _median_wall(lambda: simulate(params, gains, t_end, method="reference", rtol=1e-6).info["wall_s"],
                              repeats)
@@ -164,7 +166,8 @@ def _bench_env(env_id: str, kwargs: dict, n_envs: int, native_steps: int, dummy_
 
     native = MillVibVecEnv(env_id, n_envs, seed=seed, **kwargs)
     rng = np.random.default_rng(seed)
-    acts = rng.uniform(-1, 1, (native_steps + 5, n_envs, *native.action_space.shape)).astype(np.float32)
+    act_shape: tuple[int, ...] = native.action_space.shape  # type: ignore[assignment]  # a Box's is set
+    acts = rng.uniform(-1, 1, (native_steps + 5, n_envs, *act_shape)).astype(np.float32)
     native_rate = _time_vec(native, acts)
     set_num_threads(1)  # the same batch on one thread: what threads give on this machine now
     try:
@@ -185,7 +188,7 @@ def machine_state() -> dict:
     import numba
 
     load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
-    return {"load_1min": round(load[0], 2), "cpus": os.cpu_count(), "plant_threads": numba.config.NUMBA_NUM_THREADS,
+    return {"load_1min": round(load[0], 2), "cpus": os.cpu_count(), "plant_threads": numba.config.NUMBA_NUM_THREADS,  # type: ignore[attr-defined]
             "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY", "")}
 
 

@@ -40,7 +40,7 @@ _MAY_BE_INF = ("u_max", "xv_max")
 
 
 def _p(default: float, unit: str, doc: str, rule: str, studied: tuple[float, float] | None = None) -> Any:
-    meta = {"unit": unit, "doc": doc, "rule": rule}
+    meta: dict[str, Any] = {"unit": unit, "doc": doc, "rule": rule}
     if studied is not None:
         meta["studied"] = studied
     return field(default=default, metadata=meta)
@@ -184,7 +184,7 @@ class MillParams:
             raise ValueError(f"plant preset {path}: {err}") from None
 
     @classmethod
-    def describe(cls) -> list[tuple[str, float, str, str, str]]:
+    def describe(cls) -> list[tuple[str, Any, str, str, str]]:
         """(name, default, unit, meaning, allowed range) for every field, for docs and the CLI."""
         return [(f.name, f.default, f.metadata["unit"], f.metadata["doc"], f.metadata["rule"])
                 for f in dataclasses.fields(cls)]

@@ -43,7 +43,7 @@ from typing import Literal
 import numpy as np
 from scipy import fft as sfft
 
-from millvib_env._checks import band as checked_band, choice, real
+from millvib_env._checks import as_float, band as checked_band, choice, real, shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
@@ -70,13 +70,13 @@ def _check_signal(signal: np.ndarray, fs: float, band: tuple[float, float] | Non
                   band_name: str = "band", rows: bool = False) -> tuple[np.ndarray, tuple[float, float]]:
     """The record (or, with `rows`, a 2-D array of equally long records, one per row) as a float array
     and the band it is measured in, both checked against each other."""
-    if isinstance(fs, bool) or not isinstance(fs, (int, float, np.integer, np.floating)) or not math.isfinite(fs) \
-            or fs <= 0:
-        raise ValueError(f"fs = {fs!r} is invalid: the sampling rate in Hz, a finite number > 0")
+    if isinstance(fs, bool) or not isinstance(fs, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(as_float(fs)) or fs <= 0:
+        raise ValueError(f"fs = {shown(fs)} is invalid: the sampling rate in Hz, a finite number > 0")
     what = "a 2-D array of numbers, one record per row" if rows else "a 1-D array of numbers"
     try:
         x = np.asarray(signal, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"signal = {str(signal)[:40]!r} is invalid: {what}") from None
     if x.ndim != (2 if rows else 1):
         raise ValueError(f"signal must be {2 if rows else 1}-D, got shape {x.shape}")
@@ -188,9 +188,13 @@ def _line_per_row(line_hz, rows: int) -> np.ndarray:
     return np.array([real(f"line_hz[{k}]", f, lo=0.0) for k, f in enumerate(line_hz)])
 
 
+#: the most threads a severity transform takes (scipy.fft's workers)
+MAX_WORKERS = 1024
+
+
 def _checked_workers(workers: int) -> int:
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"workers = {workers!r} is invalid: a number of threads >= 1")
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or not 1 <= workers <= MAX_WORKERS:
+        raise ValueError(f"workers = {shown(workers)} is invalid: a number of threads in [1, {MAX_WORKERS}]")
     return int(workers)
 
 
@@ -269,8 +273,8 @@ class IsoZoneTable:
 
     def zone(self, severity_mm_s: float) -> str:
         if isinstance(severity_mm_s, bool) or not isinstance(severity_mm_s, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(severity_mm_s) or severity_mm_s < 0:
-            raise ValueError(f"severity_mm_s = {severity_mm_s!r} is invalid: must be finite and >= 0")
+                or not math.isfinite(as_float(severity_mm_s)) or severity_mm_s < 0:
+            raise ValueError(f"severity_mm_s = {shown(severity_mm_s)} is invalid: must be finite and >= 0")
         ab, bc, cd = self.boundaries_mm_s
         if severity_mm_s <= ab:
             return "A"
@@ -286,7 +290,7 @@ def _bad(key: str, value, allowed: str) -> ValueError:
 
 
 def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(as_float(v))
 
 
 @lru_cache(maxsize=None)
@@ -314,7 +318,7 @@ def _load_severity_config() -> dict:
         description = t.get("description", "")
         if not isinstance(description, str):
             raise _bad(f"zones.{name}.description", description, "a text")
-        tables[name] = IsoZoneTable(str(name), tuple(float(v) for v in b), source, description)
+        tables[name] = IsoZoneTable(str(name), (float(b[0]), float(b[1]), float(b[2])), source, description)
     default = data.get("default_class")
     if not isinstance(default, str) or default not in tables:
         raise _bad("default_class", default, f"one of the zones {sorted(tables)}")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
@@ -56,7 +57,7 @@ class Task:
 
         rng_ = self.seeds["heldout"]
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= len(rng_):
-            raise ValueError(f"episodes {n!r} is invalid: a whole number in [1, {len(rng_)}] (task {self.name!r} "
+            raise ValueError(f"episodes {shown(n)} is invalid: a whole number in [1, {len(rng_)}] (task {self.name!r} "
                              f"has {len(rng_)} held-out plants)")
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ValueError(f"seed {seed!r} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")

@@ -103,7 +103,7 @@ def use_threads(n_plants: int, purpose: str = "") -> bool:
     import numba
 
     if wanted is not None:
-        numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(min(wanted, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     return numba.get_num_threads() > 1
 
 

@@ -270,7 +270,7 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
 
 
 def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
-                      integral: str = "frozen") -> float:
+                      integral: Literal["frozen", "settled"] = "frozen") -> float:
     """Largest real part of the loop's eigenvalues (1/s): < 0 stable, > 0 unstable."""
     op = operating_point(params, gains, xd, friction=friction, integral=integral)
     return float(np.max(np.linalg.eigvals(jacobian(params, gains, op)).real))
@@ -306,8 +306,8 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
     return math.inf
 
 
-def stability_map(c1_values: Sequence[float], Ct_values: Sequence[float], *, base: MillParams | None = None,
-                  ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
+def stability_map(c1_values: Sequence[float] | np.ndarray, Ct_values: Sequence[float] | np.ndarray, *,
+                  base: MillParams | None = None, ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
                   progress: bool = False) -> np.ndarray:
     """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values))."""
     c1_values = reals("c1_values", c1_values, lo=0.0, lo_open=True)

@@ -141,20 +141,22 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
         rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
                      "severity_mm_s": f"{sev[i, j]:.4f}"})
     fig, ax = plt.subplots(figsize=(7, 5))
-    cmap = ListedColormap(["#cfe8cf", "#f6c177", "#e06c75", "#555555"])
+    colors = ["#cfe8cf", "#f6c177", "#e06c75", "#555555"]
+    cmap = ListedColormap(colors)
     ax.pcolormesh(kps, c1s, grid, cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
     ax.set(xscale="log", yscale="log", xlabel="KP (V/m)", ylabel="c1 (N s/m)",
            title="Motion after a 1 mm start (Ct = 5e-16, KI = 0.001)")
-    for k, color in zip(kinds, cmap.colors):
+    for k, color in zip(kinds, colors):
         ax.scatter([], [], marker="s", color=color, label=k)
     for study in PAPER_STUDIES:
         for case in study.cases:
             ax.scatter(case.gains.kp, case.params.c1, marker="x", color="k")
     ax.scatter([], [], marker="x", color="k", label="paper's cases")
-    from millvib_env.analysis.linear import critical_kp
+    from millvib_env.analysis.linear import Friction, critical_kp
 
     c1_fine = np.geomspace(c1s[0], c1s[-1], 40)
-    for friction, style in (("stick", "-"), ("sliding", "--")):
+    frictions: tuple[tuple[Friction, str], ...] = (("stick", "-"), ("sliding", "--"))
+    for friction, style in frictions:
         crit = [critical_kp(MillParams(c1=c), PAPER_GAINS.ki, friction=friction) for c in c1_fine]
         ax.plot(crit, c1_fine, "k" + style, lw=1.2, label=f"linear KP_crit ({friction})")
     ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)

@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 from scipy import signal as ssig
 
+from millvib_env._checks import as_float, shown
 from millvib_env.control.base import GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
 from millvib_env.params import MillParams
@@ -92,9 +93,9 @@ class EstimatorSettings:
     def __post_init__(self) -> None:
         for name in ("tau_s", "highpass_hz", "min_info"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(as_float(value)) \
                     or value <= 0:
-                raise ValueError(f"EstimatorSettings.{name} = {value!r} is invalid: a finite number > 0")
+                raise ValueError(f"EstimatorSettings.{name} = {shown(value)} is invalid: a finite number > 0")
 
 
 class PlantEstimator:
@@ -155,7 +156,7 @@ class PlantEstimator:
         if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
             cols = [np.concatenate([[prev], col]) for prev, col in zip(self.last[i], cols)]
         a_model, ql = np.empty(cols[0].size), np.empty(cols[0].size)
-        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model, ql)
+        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model, ql)  # type: ignore[call-arg]
         a_model, ql = a_model[-m:], ql[-m:]
         self.last[i] = tuple(col[-1] for col in cols)
         # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
@@ -214,7 +215,7 @@ class AdaptivePolicy(PerEnvGains):
 
     def on_reset(self, infos, indices) -> None:
         self._ensure(max(indices) + 1)
-        self.estimator.grow(self._actions.shape[0])
+        self.estimator.grow(self._held.shape[0])
         for i in indices:
             self.estimator.start(i)
             self._set(i, {"c1": np.nan, "Ct": np.nan})
@@ -232,7 +233,7 @@ class AdaptivePolicy(PerEnvGains):
 
     def _set(self, i: int, params: dict) -> None:
         self._plant[i] = (params["c1"], params["Ct"])
-        self._actions[i] = self.gain_map.action(self.gains_for(params["c1"], params["Ct"]))
+        self._held[i] = self.gain_map.action(self.gains_for(params["c1"], params["Ct"]))
 
     def episode_extras(self, i: int) -> dict:
         e1, et = self.estimator.err_c1[i], self.estimator.err_ct[i]

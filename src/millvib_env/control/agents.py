@@ -138,6 +138,10 @@ def check_agent(name: str) -> None:
 class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
 
+    card: dict
+    seed: int
+    task: str
+
     def __init__(self, folder: str | Path):
         from millvib_env.control.manifest import verify_agent
 

@@ -4,7 +4,7 @@ and the wrapper that runs a controller in a plain Gymnasium loop."""
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -28,6 +28,9 @@ class Controller:
     #: evaluation loop hands it the environments' core with `attach` before the first reset
     reads_plant = False
     task: str | None = None
+    #: a trained agent's card (`card.json`) and training seed (`control.agents.AgentPolicy`); None for a baseline
+    card: dict | None = None
+    seed: int | None = None
 
     def env_kwargs_for(self, task: str | None = None, env_kwargs: dict | None = None) -> dict:
         """The environment keyword arguments this controller runs with on `task`: the task's config,
@@ -47,7 +50,7 @@ class Controller:
     def attach(self, core) -> None:
         """Called once with the environments' core (`envs.core.MillVibCore`) where `reads_plant`."""
 
-    def on_reset(self, infos: Sequence[dict], indices: Sequence[int]) -> None:
+    def on_reset(self, infos: Sequence[dict], indices: Sequence[int] | np.ndarray) -> None:
         """Called with the reset infos of the environments that just started an episode."""
 
     def on_step(self, infos: Sequence[dict]) -> None:
@@ -65,15 +68,23 @@ class PerEnvGains(Controller):
     """A controller that holds one action per environment, set from each plant's (c1, Ct)."""
 
     gain_map: GainMap
+    _actions: np.ndarray | None = None  # (n, dim) float32, grown by _ensure
 
     def _ensure(self, n: int) -> None:
-        have = 0 if getattr(self, "_actions", None) is None else self._actions.shape[0]
+        actions = self._actions
+        have = 0 if actions is None else actions.shape[0]
         if have < n:
             grown = np.zeros((n, self.gain_map.dim), dtype=np.float32)
-            if have:
-                grown[:have] = self._actions
+            if actions is not None and have:
+                grown[:have] = actions
             self._actions = grown
             self._plant = getattr(self, "_plant", []) + [None] * (n - have)
+
+    @property
+    def _held(self) -> np.ndarray:
+        """(n, dim): the action each environment holds (grown by `_ensure` before it is read)."""
+        assert self._actions is not None
+        return self._actions
 
     def gains_for(self, c1: float, ct: float) -> np.ndarray:
         raise NotImplementedError
@@ -82,7 +93,7 @@ class PerEnvGains(Controller):
         key = (params["c1"], params["Ct"])
         if self._plant[i] != key:  # the plant changed (a new episode, or a change within one)
             self._plant[i] = key
-            self._actions[i] = self.gain_map.action(self.gains_for(*key))
+            self._held[i] = self.gain_map.action(self.gains_for(*key))
 
     def on_reset(self, infos, indices) -> None:
         self._ensure(max(indices) + 1)
@@ -95,19 +106,21 @@ class PerEnvGains(Controller):
             self._set(i, info["params"])
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        if getattr(self, "_actions", None) is None:
+        actions = self._actions
+        if actions is None:
             what = "the measured signals" if self.needs_signals else "the episode's true c1 and Ct"
             raise ValueError(f"{self.name} reads {what} through on_reset(infos, indices) after every reset and "
                              "on_step(infos) after every step: run it in env = ctrl.make_env(), which makes those "
                              "calls (the benchmark's evaluation loop makes them too)")
         obs = np.asarray(observation)
-        return (self._actions[0].copy() if obs.ndim == 1 else self._actions[: obs.shape[0]].copy()), state
+        return (actions[0].copy() if obs.ndim == 1 else actions[: obs.shape[0]].copy()), state
 
 
 class GainTable:
     """Gains tuned offline on a (log c1, log Ct) grid, interpolated bilinearly in log gains."""
 
-    def __init__(self, c1_grid: Sequence[float], ct_grid: Sequence[float], log_gains: np.ndarray):
+    def __init__(self, c1_grid: Sequence[float] | np.ndarray, ct_grid: Sequence[float] | np.ndarray,
+                 log_gains: np.ndarray):
         from scipy.interpolate import RegularGridInterpolator
 
         self.c1_grid, self.ct_grid = np.asarray(c1_grid, float), np.asarray(ct_grid, float)
@@ -129,9 +142,11 @@ class ControllerLoop(gym.Wrapper):
     def __init__(self, env: gym.Env, controller: Controller):
         super().__init__(env)
         self.controller = controller
-        env.unwrapped.core.record_signals = bool(controller.needs_signals)
+        unwrapped: Any = env.unwrapped  # a millvib env: its core is an envs.core.MillVibCore
+        core = unwrapped.core
+        core.record_signals = bool(controller.needs_signals)
         if controller.reads_plant:
-            controller.attach(env.unwrapped.core)
+            controller.attach(core)
 
     def reset(self, **kwargs):
         obs, info = self.env.reset(**kwargs)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def _deployed(agent):
     return Deployed().eval()
 
 
-def _episode_observations(agent, steps: int) -> np.ndarray:
+def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
     """The observations of the agent's own first `steps` steps on its task's first validation plant."""
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.tasks import get_task
@@ -150,7 +151,8 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     # needs nothing it adds; torch warns that the older path is deprecated (the pinned torch has it)
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        torch.onnx.export(module, (torch.zeros(1, dim),), buf, dynamo=False, opset_version=ONNX_OPSET,
+        torch.onnx.export(module, (torch.zeros(1, dim),), buf,  # type: ignore[arg-type]  # a file object too
+                          dynamo=False, opset_version=ONNX_OPSET,
                           input_names=["observation"], output_names=["action"],
                           dynamic_axes={"observation": {0: "batch"}, "action": {0: "batch"}})
     model = onnx.load_from_string(buf.getvalue())

@@ -23,7 +23,7 @@ import numpy as np
 from scipy import linalg
 
 from millvib_env._checks import instance, real
-from millvib_env.analysis.linear import linearize
+from millvib_env.analysis.linear import Friction, linearize
 from millvib_env.threads import one_blas_thread
 from millvib_env.params import MillParams
 
@@ -44,7 +44,7 @@ class LQRWeights:
     q_p: float = 1e-3
     q_i: float = 1.0
     r: float = 1.0
-    friction: str = "sliding"
+    friction: Friction = "sliding"
 
     def __post_init__(self) -> None:
         for name in ("q_x", "q_v", "q_p", "q_i", "r"):

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import linalg, sparse
@@ -43,6 +44,9 @@ from millvib_env._checks import instance, real
 from millvib_env.control.base import Controller
 from millvib_env.params import MillParams
 from millvib_env.threads import one_blas_thread
+
+if TYPE_CHECKING:
+    from millvib_env.envs.core import MillVibCore
 
 __all__ = ["MPCSettings", "MPCModel", "MPCPolicy", "mpc_model", "offset_free_update", "REBUILD_LOG_STEP",
            "REBUILD_XD_M"]
@@ -101,7 +105,7 @@ class MPCModel:
     G_w: np.ndarray       # (N, ns) gradient per model residual (held over the horizon)
     Q: np.ndarray         # (ns, ns) the stage weight and
     P: np.ndarray         # (ns, ns) the terminal one (the discrete Riccati solution)
-    solver: object = None  # OSQP, set up on the scaled problem
+    solver: Any = None  # OSQP, set up on the scaled problem
     q_scale: float = 1.0
 
 
@@ -200,11 +204,13 @@ class MPCPolicy(Controller):
                              "loop has no sampled controller to stand in for")
         self.name, self.settings = name, instance("settings", settings, MPCSettings, "an MPCSettings")
         self.env_id = env_id_for("valve", version)
-        self.env_kwargs = {}
-        self.core = None
-        self._models: list = []
-        self._keys: list = []
+        self.env_kwargs: dict = {}
+        self.core: MillVibCore | None = None
+        self._models: list[MPCModel | None] = []
+        self._keys: list[tuple[float, float, float] | None] = []
         self._xi = np.zeros(0)
+        self._w: list[np.ndarray | None] = []
+        self._pred: list[np.ndarray | None] = []
         #: QP solves that did not report 'solved' (their clipped first move is used)
         self.unsolved = 0
         self.solves = 0
@@ -223,6 +229,14 @@ class MPCPolicy(Controller):
         self._w = [None] * n      # the model's one-step residual, filtered (offset-free prediction)
         self._pred = [None] * n   # the state the model predicted for this sample
 
+    @property
+    def _core(self) -> MillVibCore:
+        """The attached core (`attach`); a clear error before it is."""
+        if self.core is None:
+            raise ValueError(f"{self.name} reads the plant's state: run it in env = ctrl.make_env() or through "
+                             "the benchmark's evaluation loop, which hand it the environments (attach)")
+        return self.core
+
     def on_reset(self, infos, indices) -> None:
         for i in indices:
             self._xi[i] = 0.0
@@ -230,14 +244,16 @@ class MPCPolicy(Controller):
             self._keys[i] = None  # a new episode, a new plant: the model is rebuilt at its first sample
 
     def _model(self, i: int, xd: float) -> MPCModel:
-        core = self.core
+        core = self._core
         base = core.params[i]
         now = core.current_params(i)
         key = (math.log(now["c1"]), math.log(now["Ct"]), xd)
         old = self._keys[i]
         if old is not None and abs(old[0] - key[0]) <= REBUILD_LOG_STEP and abs(old[1] - key[1]) <= REBUILD_LOG_STEP \
                 and abs(old[2] - xd) <= REBUILD_XD_M:
-            return self._models[i]
+            model = self._models[i]
+            assert model is not None  # a key is stored with its model
+            return model
         import osqp
 
         m = mpc_model(base.replace(c1=now["c1"], Ct=now["Ct"]), self.settings, core.loop.dt_s, xd)
@@ -258,7 +274,8 @@ class MPCPolicy(Controller):
         """e_j for the steps from t_k (j = 0: the step already committed) to t_(k+N): (N + 1, 3)."""
         from millvib_env.plant.model import P_PA, P_PS, supply_pressure
 
-        core = self.core
+        core = self._core
+        assert core.loop is not None  # attach checks it
         dt = core.loop.dt_s
         k = int(core.k[i]) * core.n_sub
         t = core.T[i]
@@ -285,7 +302,8 @@ class MPCPolicy(Controller):
         from millvib_env.loop.kernel import K_UAPP, K_UPEND
         from millvib_env.plant.model import IX
 
-        core = self.core
+        core = self._core
+        assert core.loop is not None  # attach checks it
         k = int(core.k[i]) * core.n_sub
         xd_now = float(core.XD[i, min(k, core.XD.shape[1] - 1)])
         m = self._model(i, xd_now)
@@ -299,9 +317,10 @@ class MPCPolicy(Controller):
         # operating point's drift), filtered and held over the horizon
         a = self.settings.residual_filter
         w = self._w[i]
-        if a > 0.0 and self._pred[i] is not None and self._pred[i].shape == y[m.keep].shape:
+        pred = self._pred[i]
+        if a > 0.0 and pred is not None and pred.shape == y[m.keep].shape:
             miss = np.zeros_like(s)
-            miss[:-1] = y[m.keep] - self._pred[i]
+            miss[:-1] = y[m.keep] - pred
             w = offset_free_update(None if w is None or w.shape != s.shape else w, miss, a)
             self._w[i] = w
         if w is None or w.shape != s.shape:
@@ -332,11 +351,9 @@ class MPCPolicy(Controller):
         return u
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        if self.core is None:
-            raise ValueError(f"{self.name} reads the plant's state: run it in env = ctrl.make_env() or through "
-                             "the benchmark's evaluation loop, which hand it the environments (attach)")
+        core = self._core
         obs = np.asarray(observation)
         n = 1 if obs.ndim == 1 else obs.shape[0]
         u = np.array([self.teacher_command(i) for i in range(n)])
-        action = (u / self.core.u_range).astype(np.float32)[:, None]
+        action = (u / core.u_range).astype(np.float32)[:, None]
         return (action[0] if obs.ndim == 1 else action), state

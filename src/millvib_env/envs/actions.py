@@ -97,6 +97,13 @@ class GainMap:
     def dim(self) -> int:
         return len(self.names)
 
+    def _relative_map(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(base, decades) of a relative map, None for an absolute one."""
+        if self.base is None:
+            return None
+        assert self.decades is not None  # set with the base (from_config)
+        return self.base, self.decades
+
     @property
     def log_lo(self) -> np.ndarray:
         return np.log10(self.lo)
@@ -108,8 +115,9 @@ class GainMap:
     def gains(self, action: np.ndarray) -> np.ndarray:
         """Gains (..., dim) for actions (..., dim); actions outside [-1, 1] are clipped."""
         a = np.clip(action, -1.0, 1.0)
-        if self.relative:
-            return self.base * 10.0 ** (self.decades * a)
+        rel = self._relative_map()
+        if rel is not None:
+            return rel[0] * 10.0 ** (rel[1] * a)
         frac = (a + 1.0) / 2.0
         if self.log:
             return 10.0 ** (self.log_lo + frac * (self.log_hi - self.log_lo))
@@ -119,14 +127,16 @@ class GainMap:
         """The action that maps to `gains` (..., dim, or 3: missing gains take their lowest bound, or
         their base in the relative map); clipped to [-1, 1]."""
         g = np.asarray(gains, dtype=np.float64)
+        rel = self._relative_map()
         if g.shape[-1] < self.dim:
-            fill = (self.base if self.relative else self.lo)[g.shape[-1]:]
+            fill = (self.lo if rel is None else rel[0])[g.shape[-1]:]
             g = np.concatenate([g, np.broadcast_to(fill, g.shape[:-1] + fill.shape)], axis=-1)
         g = g[..., :self.dim]
-        if self.relative:
+        if rel is not None:
+            base, decades = rel
             with np.errstate(divide="ignore", invalid="ignore"):
-                offset = np.log10(np.maximum(g, 1e-300) / self.base)
-                a = np.where(self.decades > 0, offset / np.where(self.decades > 0, self.decades, 1.0), 0.0)
+                offset = np.log10(np.maximum(g, 1e-300) / base)
+                a = np.where(decades > 0, offset / np.where(decades > 0, decades, 1.0), 0.0)
             return np.clip(a, -1.0, 1.0)
         if self.log:
             frac = (np.log10(np.maximum(g, 1e-300)) - self.log_lo) / (self.log_hi - self.log_lo)
@@ -137,8 +147,9 @@ class GainMap:
     def start_gains(self, paper: np.ndarray) -> np.ndarray:
         """The gains an episode starts with: the base (relative map), else the paper's (KP, KI, KD)
         with KPL and KFF at their lowest bounds (or 0 where a linear bound allows it)."""
-        if self.relative:
-            return self.base.copy()
+        rel = self._relative_map()
+        if rel is not None:
+            return rel[0].copy()
         rest = np.maximum(self.lo[3:], 0.0)
         return np.concatenate([np.asarray(paper, float)[:3], rest])
 

@@ -90,5 +90,5 @@ class EpisodeBatch:
         obs, _, terminated, truncated, infos = self.core.step(actions)
         dones = terminated | truncated
         for i in np.flatnonzero(dones):
-            obs[i], self.reset_infos[i] = self.core.reset_env(i)
+            obs[i], self.reset_infos[i] = self.core.reset_env(int(i))
         return obs, dones, infos

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, NoReturn
 
 from millvib_env._paths import config_dir
 from millvib_env._checks import as_float, shown
@@ -225,7 +225,7 @@ class EnvConfig:
 
 
 # --- the schema --------------------------------------------------------------------------------
-def _fail(path: str, value: Any, allowed: str) -> None:
+def _fail(path: str, value: Any, allowed: str) -> NoReturn:
     raise ValueError(f"env config {path} = {shown(value)} is invalid: {allowed}")
 
 
@@ -424,8 +424,8 @@ def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
         raise ValueError(f"{where} = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])"
                          + (f" ({hint})" if hint else ""))
     for k, g in enumerate(gains):
-        if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) or g < 0:
-            raise ValueError(f"{where}[{k}] = {g!r} is invalid: a finite number >= 0")
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(as_float(g)) or g < 0:
+            raise ValueError(f"{where}[{k}] = {shown(g)} is invalid: a finite number >= 0")
     return [float(g) for g in gains]
 
 

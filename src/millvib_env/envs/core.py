@@ -21,6 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
+from millvib_env._checks import as_float, shown
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances
@@ -90,8 +91,8 @@ class MillVibCore:
         n_trace = self.max_steps * self.n_samp + 1
         need = 8 * self.n * (n_trace + 2 * self.n_ctrl + 2 * (self.n_samp + 1) * (NY + NAUX))
         if need > MAX_BATCH_BYTES:
-            raise ValueError(f"n_envs = {self.n} with episode_s = {config.episode_s} s would need "
-                             f"{need / 2**30:.1f} GiB of episode records; allowed up to "
+            raise ValueError(f"n_envs = {shown(self.n)} with episode_s = {config.episode_s} s would need "
+                             f"{as_float(need) / 2**30:.1f} GiB of episode records; allowed up to "
                              f"{MAX_BATCH_BYTES / 2**30:.0f} GiB: use fewer environments or shorter episodes")
         self.disturbances, noise, delay = build_disturbances(raw["disturbances"])
 
@@ -170,7 +171,8 @@ class MillVibCore:
     def current_params(self, i: int) -> dict:
         """The plant of environment i now: c1 and Ct move during a plant change."""
         p = self.params[i]
-        change = self.profiles[i].change if self.profiles[i] is not None else None
+        profile = self.profiles[i]
+        change = profile.change if profile is not None else None
         if change is None:  # every step's info carries it: a copy of the episode's, not a new build
             return dict(self._plant_info[i])
         c1, ct = change.values_at(self.T[i], p)

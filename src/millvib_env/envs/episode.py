@@ -66,7 +66,7 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
     if x0 is not None:
         x_max = config.envelope.x_max_m
         if isinstance(x0, bool) or not isinstance(x0, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(as_float(x0)) or abs(x0) >= x_max:
+                or not math.isfinite(as_float(x0)) or abs(as_float(x0)) >= x_max:
             raise ValueError(f"reset option x0 = {shown(x0)} m is invalid: a finite displacement with |x0| < "
                              f"envelope.x_max_m = {x_max} m")
     return out

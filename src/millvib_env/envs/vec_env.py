@@ -45,13 +45,13 @@ class MillVibVecEnv(VecEnv):
             self.seed(seed)
 
     # --- VecEnv API -----------------------------------------------------------------------------
-    def seed(self, seed: int | None = None) -> list[int | None]:
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Seed environment i with `seed` + i at the next reset (SB3's VecEnv.seed), the public way
         to give a VecEnv's environments their plants."""
         return super().seed(seed_or_none("seed", seed))
 
     def reset(self) -> np.ndarray:
-        obs = np.zeros((self.num_envs, *self.observation_space.shape), dtype=np.float32)
+        obs = np.zeros((self.num_envs, *self.core.observation_space.shape), dtype=np.float32)
         for i in range(self.num_envs):
             obs[i], self.reset_infos[i] = self.core.reset_env(i, self._seeds[i], self._options[i] or None)
         self._reset_seeds()
@@ -85,7 +85,8 @@ class MillVibVecEnv(VecEnv):
         return [frame]
 
     def _per_env(self, name: str) -> list | None:
-        per_env = {"params": self.core.params, "scenario": self.core.scenario, "np_random": self.core.np_random}
+        per_env: dict[str, list] = {"params": self.core.params, "scenario": self.core.scenario,
+                                    "np_random": self.core.np_random}
         return per_env.get(name)
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:

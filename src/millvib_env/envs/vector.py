@@ -57,7 +57,8 @@ class MillVibVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
         infos: dict = {}
-        obs = np.zeros(self.observation_space.shape, dtype=np.float32)
+        shape: tuple[int, ...] = self.observation_space.shape  # type: ignore[assignment]  # a Box's is set
+        obs = np.zeros(shape, dtype=np.float32)
         for i, s in enumerate(self._seeds(seed)):
             obs[i], info = self.core.reset_env(i, s, options)
             infos = self._add_info(infos, info, i)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Sequence, Union
+from typing import TYPE_CHECKING, Callable, Sequence, Union
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, STATES,
                                      PlantChange, drive_vector, initial_state, pack, state_scale)
-from millvib_env.severity import iso_zone, vibration_severity
+from millvib_env.severity import Quantity, iso_zone, vibration_severity
 
 __all__ = ["SimResult", "BatchResult", "simulate", "simulate_batch", "DEFAULT_RTOL_FAST",
            "DEFAULT_RTOL_REFERENCE", "state_scale"]
@@ -70,8 +70,14 @@ class SimResult:
         """(n_t, NAUX): the auxiliary outputs at every sample, `model.AUX` order (computed once, on first
         access)."""
         if self._aux is None:
+            if self._aux_fn is None:
+                raise ValueError("this SimResult has no auxiliary outputs: it was built without the function "
+                                 "that computes them (runs from simulate and simulate_batch have it)")
             self._aux = self._aux_fn()
         return self._aux
+
+    if TYPE_CHECKING:  # one column per state and auxiliary output, set below from the layout in plant.model
+        def __getattr__(self, name: str) -> np.ndarray: ...
 
     @property
     def dt(self) -> float:
@@ -81,12 +87,12 @@ class SimResult:
         """The samples from `t_start` (s, in [0, the run's end)) on; ValueError outside."""
         t_end = (len(self.t) - 1) * self.dt
         if isinstance(t_start, bool) or not isinstance(t_start, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(t_start) or not 0.0 <= t_start < t_end:
-            raise ValueError(f"t_start = {t_start!r} s is invalid: a time in [0, {t_end:g}) s, the run's record")
+                or not math.isfinite(as_float(t_start)) or not 0.0 <= t_start < t_end:
+            raise ValueError(f"t_start = {shown(t_start)} s is invalid: a time in [0, {t_end:g}) s, the run's record")
         k0 = int(math.ceil(t_start / self.dt - 1e-9))
         return slice(k0, None)
 
-    def severity(self, *, t_start: float = 0.0, quantity: str = "acceleration",
+    def severity(self, *, t_start: float = 0.0, quantity: Quantity = "acceleration",
                  band: tuple[float, float] | None = None) -> float:
         """Vibration severity (mm/s) of the piston from `t_start` on (see `vibration_severity`).
 
@@ -207,8 +213,8 @@ def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
 def _as_floats(name: str, value) -> np.ndarray:
     try:
         return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} = {value!r:.60} is invalid: a number or an array of numbers (m)") from None
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} = {shown(value)} is invalid: a finite number or an array of them (m)") from None
 
 
 def _xd_samples(xd: XdSpec, t: np.ndarray, n_plants: int) -> np.ndarray:
@@ -337,7 +343,8 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
     else:
         Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))
-    changes = list(change) if isinstance(change, (list, tuple)) else [change] * N
+    changes: list[PlantChange | None] = (list(change) if isinstance(change, (list, tuple))
+                                         else [change] * N)  # type: ignore[list-item]
     if len(changes) != N:
         raise ValueError(f"change has {len(changes)} entries for {N} plants")
     C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on, pl_ref=float(y[IPL]), change=ch)

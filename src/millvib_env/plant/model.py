@@ -72,6 +72,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from millvib_env._checks import as_float, shown
 from millvib_env.params import PARAM_FIELDS, MillParams, PIDGains
 
 # --- layout of the vectors the compiled code reads: declared once ------------------------------
@@ -338,8 +339,8 @@ class PlantChange:
         for name in ("t0_s", "duration_s", "c1_factor", "ct_factor"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                    or not math.isfinite(value):
-                raise ValueError(f"PlantChange.{name} = {value!r} is invalid: must be a finite number")
+                    or not math.isfinite(as_float(value)):
+                raise ValueError(f"PlantChange.{name} = {shown(value)} is invalid: must be a finite number")
         if self.t0_s < 0 or self.duration_s <= 0:
             raise ValueError(f"PlantChange: t0_s = {self.t0_s!r} must be >= 0 and duration_s = "
                              f"{self.duration_s!r} > 0 (s)")

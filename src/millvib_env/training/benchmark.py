@@ -22,7 +22,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -37,7 +37,7 @@ from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig, task_config
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, run_episodes, trace_episode
+from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.training.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES",
@@ -48,7 +48,7 @@ DEFAULT_EPISODES = 40
 FULL_EPISODES = 200
 
 
-def _by_seed(records: Sequence[dict]) -> list[list[dict]]:
+def _by_seed(records: Sequence[Mapping[str, Any]]) -> list[list[Mapping[str, Any]]]:
     """Records split by the agent's training seed (`agent_seed`; one group for a fixed controller),
     each group in plant order."""
     groups: dict = {}
@@ -57,7 +57,7 @@ def _by_seed(records: Sequence[dict]) -> list[list[dict]]:
     return [groups[k] for k in sorted(groups, key=lambda k: (k is not None, k if k is not None else -1))]
 
 
-def summarize(records: Sequence[dict]) -> dict:
+def summarize(records: Sequence[Mapping[str, Any]]) -> dict:
     """One controller's summary over its episodes (an agent's: every training seed x the plants).
     The protocol's six metrics carry a 95 % interval (`millvib_env.training.stats`)."""
     groups = _by_seed(records)
@@ -95,7 +95,7 @@ def _spread(values) -> dict:
     return {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(np.max(v))}
 
 
-def actuator_summary(records: Sequence[dict]) -> dict:
+def actuator_summary(records: Sequence[Mapping[str, Any]]) -> dict:
     """What a controller asked of its actuator, over its episodes: the valve command's largest magnitude per
     episode (median, p95, max; V) and its mean share of time at the amplifier's limit, the spool stroke used
     (m) and the peak flow against the rated flow (median, p95, max), the chamber pressure's range (Pa), and
@@ -119,7 +119,7 @@ def loop_description(cfg: EnvConfig) -> dict:
              "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)} if not p.ideal_valve else \
         {"ideal": True, "xv_max_m": p.xv_max, "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)}
     finite = lambda v: v if math.isfinite(v) else None  # noqa: E731 (JSON has no infinity: null = no limit)
-    valve["xv_max_m"] = finite(valve["xv_max_m"])
+    valve["xv_max_m"] = finite(valve["xv_max_m"])  # type: ignore[assignment]
     out = {"u_max_v": finite(p.u_max), "valve": valve}
     if cfg.loop is None:
         return {"kind": "analog", **out}
@@ -139,7 +139,7 @@ def distinct_plant_scenarios() -> list[str]:
 
 
 def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
-                    env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[dict]:
+                    env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[EpisodeRecord]:
     """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep); for an agent,
     its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`. A baseline
     runs in `env_id`'s version; an agent in its own."""
@@ -147,8 +147,8 @@ def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillV
     return _run(ctrl, seeds, task, env_kwargs)
 
 
-def _run(ctrl: Controller, seeds, task: str, env_kwargs: dict | None = None, **kw) -> list[dict]:
-    is_agent = getattr(ctrl, "card", None) is not None
+def _run(ctrl: Controller, seeds, task: str, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
+    is_agent = ctrl.card is not None
     recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=task, env_kwargs=env_kwargs, **kw)
     if is_agent:
         for r in recs:
@@ -170,7 +170,7 @@ def _load_units(names: list[str], task: str, all_seeds: bool,
     loaded: dict[tuple, Controller] = {}
     for n in tqdm(names, desc=f"benchmark {task}: loading", unit="controller", disable=not progress, leave=False):
         first = load_controller(n, task, version=version)
-        if getattr(first, "card", None) is not None:
+        if first.card is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
                 units.append((n, s))
                 loaded[(n, s)] = first if s == first.seed else load_controller(n, task, seed=s)
@@ -189,10 +189,10 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
 
 
 def _collect_records(units: list, loaded: dict, plants: list[int], task: str, env_id: str, ray: str | None,
-                     progress: bool) -> dict[tuple, list[dict]]:
+                     progress: bool) -> dict[tuple, list[EpisodeRecord]]:
     """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as Ray tasks of
     CHUNK episodes (each episode depends only on its seeds, so the records are the same)."""
-    records: dict[tuple, list[dict]] = {}
+    records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None:
         from millvib_env.distributed import run_jobs
 

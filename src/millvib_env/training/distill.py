@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -157,19 +158,20 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     from millvib_env._checks import real
 
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
-    net = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
+    layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample)
     teacher_ctrl = load_controller(teacher, t.name, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
-                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(net), vf=[64, 64])))
+                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(layers), vf=[64, 64])))
     first = t.train_env_seed(seed)
     save_dir = Path(save_dir)
     bar = None
     if progress:
         from tqdm.auto import tqdm
-        bar = tqdm(total=iterations * episodes * env.unwrapped.core.max_steps, unit="step",
+        unwrapped: Any = env.unwrapped  # a millvib env: its core (envs.core.MillVibCore) knows the episode
+        bar = tqdm(total=iterations * episodes * unwrapped.core.max_steps, unit="step",
                    desc=f"distill {teacher} on {t.name}")
     X_all, Y_all = [], []
     student, stats = None, None
@@ -198,6 +200,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
             best = (folder, val, it + 1)
     if bar is not None:
         bar.close()
+    assert best is not None  # iterations >= 1: every iteration is validated
     folder, val, it = best
     card = _card(t.name, env_id, kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
                  history[it - 1]["fit_mse"], command, baseline)

@@ -9,7 +9,7 @@ environment's first episode is recorded.
 from __future__ import annotations
 
 import math
-from typing import Sequence, TypedDict
+from typing import Any, Sequence, TypedDict, cast
 
 import numpy as np
 
@@ -128,23 +128,24 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
         episode_start = dones
         controller.on_step(infos)
         finished = np.flatnonzero(dones)
-        for i in finished:
+        for i in finished.tolist():
             if records[i] is None:
                 info = infos[i]
                 sev, trk = float(info["severity"]), float(info["tracking_rms_um"])
-                records[i] = {"seed": int(seeds[i]), "scenario": scenario, "c1": first_params[i]["c1"],
-                              "Ct": first_params[i]["Ct"], "beta_e": first_params[i]["beta_e"],
-                              "mt": first_params[i]["mt"], "FL": first_params[i]["FL"],
-                              "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
-                              "severity_mm_s": sev, "tracking_rms_um": trk,
-                              "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),
-                              "cost": scored_cost(sev, trk, bool(info["diverged"]), scales),
-                              **{k: info[k] for k in ACTUATOR_FIELDS},
-                              "severity_start_mm_s": info["severity_start"],
-                              "severity_rest_mm_s": info["severity_rest"],
-                              "pump_line_mm_s": info["pump_line_mm_s"], "low_band_mm_s": info["low_band_mm_s"],
-                              "episode_return": float(info["episode_return"]), "steps": int(info["episode_steps"]),
-                              **controller.episode_extras(i)}
+                rec = {"seed": int(seeds[i]), "scenario": scenario, "c1": first_params[i]["c1"],
+                       "Ct": first_params[i]["Ct"], "beta_e": first_params[i]["beta_e"],
+                       "mt": first_params[i]["mt"], "FL": first_params[i]["FL"],
+                       "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
+                       "severity_mm_s": sev, "tracking_rms_um": trk,
+                       "iso_zone": info["iso_zone"], "diverged": bool(info["diverged"]),
+                       "cost": scored_cost(sev, trk, bool(info["diverged"]), scales),
+                       **{k: info[k] for k in ACTUATOR_FIELDS},
+                       "severity_start_mm_s": info["severity_start"],
+                       "severity_rest_mm_s": info["severity_rest"],
+                       "pump_line_mm_s": info["pump_line_mm_s"], "low_band_mm_s": info["low_band_mm_s"],
+                       "episode_return": float(info["episode_return"]), "steps": int(info["episode_steps"]),
+                       **controller.episode_extras(i)}
+                records[i] = cast(EpisodeRecord, rec)
                 if bar is not None:
                     bar.update(1)
         if len(finished):
@@ -189,7 +190,7 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
         parts["u"].append(core.AUXS[0, 1:n + 1, A_U].copy())
         if done[0]:
             break
-    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out: dict[str, Any] = {k: np.concatenate(v) for k, v in parts.items()}
     out["t"] = np.arange(out["x"].size) * core.dt_sample
     out["gains"] = np.array(gains).reshape(-1, 3)
     out["step_s"] = core.period_s

@@ -35,7 +35,8 @@ def _convert(node: ast.AST, where: str) -> Any:
         items = [_convert(e, where) for e in node.elts]
         return items if isinstance(node, ast.List) else tuple(items)
     if isinstance(node, ast.Dict) and all(k is not None for k in node.keys):
-        return {_convert(k, where): _convert(v, where) for k, v in zip(node.keys, node.values)}
+        return {_convert(k, where): _convert(v, where) for k, v in zip(node.keys, node.values)
+                if k is not None}
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
         return {kw.arg: _convert(kw.value, where) for kw in node.keywords if kw.arg is not None}
     if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "nn"

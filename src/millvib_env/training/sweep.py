@@ -55,8 +55,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     from millvib_env.training.benchmark import episode_records, summarize
 
     t = get_task(task)
-    if isinstance(plants, bool) or not isinstance(plants, int) or plants < 1:
-        raise ValueError(f"--plants {plants!r} is invalid: a whole number >= 1")
+    plants = integer("--plants", plants, lo=1, hi=len(t.seeds["heldout"]) - SEED_OFFSET)
     controllers = strings("controllers", controllers, "controller names")
     params = list(dict.fromkeys(strings("params", params, "parameter names")))
     seed = None if seed is None else integer("seed", seed, lo=0)
@@ -76,7 +75,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
                      desc=f"sweep {t.name}")
     records: dict[str, list] = {n: [] for n in controllers}
     for job, part in zip(jobs, parts):
-        records[job["name"]].extend(part)
+        records[str(job["name"])].extend(part)
     summary = {"task": t.name, "env_version": env_version, "plants": plants, "seed": first, "params": params,
                "ranges": {p: list(RANGES[p]) for p in params},
                "controllers": {n: summarize(r) for n, r in records.items()}}

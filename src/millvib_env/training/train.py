@@ -22,6 +22,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -76,8 +77,8 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
                                                deterministic=True, return_episode_rewards=True)
             self.best_mean_reward = float(np.mean(rewards))
             self.evaluations_timesteps.append(0)  # the curve starts at the starting policy
-            self.evaluations_results.append([float(r) for r in rewards])
-            self.evaluations_length.append([int(n) for n in lengths])
+            self.evaluations_results.append([float(r) for r in cast(list, rewards)])
+            self.evaluations_length.append([int(n) for n in cast(list, lengths)])
             best_dir.mkdir(parents=True, exist_ok=True)
             model.save(best_dir / "best_model.zip")
             self._keep_best(0)
@@ -148,7 +149,7 @@ def jit_noise_key_split(model) -> None:
     (130 us here, about a tenth of a step); the same split compiled once (8 us) gives the same keys.
     Set on the policy instance of a training run: nothing of it is saved with the model."""
     policy = getattr(model, "policy", None)
-    if not hasattr(policy, "noise_key") or getattr(policy, "use_sde", False):
+    if policy is None or not hasattr(policy, "noise_key") or getattr(policy, "use_sde", False):
         return
     import types
 

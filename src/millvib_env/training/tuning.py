@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -190,23 +190,24 @@ def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: 
     from millvib_env.control.lqr import lqr_gains
     from millvib_env.control.policies import LQRPolicy
 
-    env_kwargs = {"config": get_task(task).config, **LQRPolicy.ENV_KWARGS}
+    env_kwargs: dict[str, Any] = {"config": get_task(task).config, **LQRPolicy.ENV_KWARGS}
     cfg = load_env_config(**env_kwargs, version=version)
     gain_map = GainMap.from_config(cfg)
     dt_s = None if cfg.loop is None else cfg.loop.dt_s
     plants = plants_of(seeds, task, version)
     m = len(seeds)
-    actions, ok = [], []
+    rows, designed = [], []
     for w in weight_sets:
         for p in plants:
             try:
                 g = lqr_gains(p, w, dt_s=dt_s)
-                ok.append(bool(np.all(np.isfinite(g))))
+                designed.append(bool(np.all(np.isfinite(g))))
             except (np.linalg.LinAlgError, ValueError):
-                g, _ = np.zeros(4), ok.append(False)
-            actions.append(gain_map.action(np.nan_to_num(g)))
-    actions = np.array(actions)
-    ok = np.array(ok).reshape(len(weight_sets), m)
+                g = np.zeros(4)
+                designed.append(False)
+            rows.append(gain_map.action(np.nan_to_num(g)))
+    actions = np.array(rows)
+    ok = np.array(designed).reshape(len(weight_sets), m)
     costs = np.empty((len(weight_sets), m))
     per_chunk = max(1, chunk // m)
     for start in range(0, len(weight_sets), per_chunk):
@@ -229,7 +230,8 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40, version
     keys = ("q_v", "q_p", "q_i", "r")
     grid = [dict(zip(keys + ("friction",), combo)) for combo in np.stack(np.meshgrid(
         *[np.arange(len(LQR_GRID[k])) for k in keys + ("friction",)], indexing="ij"), -1).reshape(-1, 5)]
-    sets = [LQRWeights(**{k: LQR_GRID[k][int(c[k])] for k in keys + ("friction",)}) for c in grid]
+    sets = [LQRWeights(**{k: LQR_GRID[k][int(c[k])] for k in keys + ("friction",)})  # type: ignore[arg-type]
+            for c in grid]
     costs = lqr_costs(sets, seeds, task=task, version=version)
     best = sets[int(np.argmin(costs))]
     n_eval = len(sets)
@@ -268,14 +270,14 @@ def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = AD
 
     cfg = task_config(task, version)
     table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
-    costs = {}
+    costs: dict[float, float] = {}
     for tau in taus:
         ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params,
                               sample_rate_hz=cfg.sample_rate_hz)
         ctrl.env_id = env_id_for("gain", version)
         recs = run_episodes(ctrl, list(seeds), task=task)
         costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
-    tau = min(costs, key=costs.get)
+    tau = min(costs, key=lambda t: costs[t])
     return {"estimator": {"tau_s": tau, "highpass_hz": EstimatorSettings().highpass_hz,
                           "min_info": EstimatorSettings().min_info},
             "tuning_costs": {str(k): round(v, 4) for k, v in costs.items()}}
