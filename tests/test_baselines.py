@@ -9,7 +9,7 @@ from millvib_env.control.factory import control_entry, load_controller
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
 from millvib_env.params import PIDGains
-from millvib_env.tasks import list_tasks
+from millvib_env.tasks import get_task, list_tasks
 from millvib_env.training.evaluate import run_episodes
 
 
@@ -34,8 +34,8 @@ def test_linearisation_converts_to_python_control():
 
 @pytest.mark.parametrize("task", list_tasks())
 def test_lqr_closed_loop_is_stable_on_every_plant_of_the_oracle_grid(task):
-    weights = LQRWeights(**control_entry(task, "lqr-oracle")["weights"])
-    grid = control_entry(task, "pid-oracle")
+    weights = LQRWeights(**control_entry(get_task(task), "lqr-oracle")["weights"])
+    grid = control_entry(get_task(task), "pid-oracle")
     lqr = load_controller("lqr-oracle", task)
     for c1 in grid["c1_grid"]:
         for ct in grid["ct_grid"]:

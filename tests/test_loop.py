@@ -12,6 +12,7 @@ from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.reward import DIVERGED_COST
 from millvib_env.loop.kernel import K_UI
+from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import run_episodes, trace_episode
 
 #: a PID + pressure feedback of the v0 startup task's kind (KP, KI, KD, KPL)
@@ -139,7 +140,7 @@ def test_a_diverged_episode_costs_at_least_the_cap_in_the_benchmark_and_the_tuni
         import millvib_env.training.tuning as tuning
 
         mp.setattr(tuning, "gain_env_kwargs", lambda *a, **k: {"config": "startup", **tight})
-        assert mean_costs(np.log10([gains]), [20000, 20001], task="startup")[0] >= DIVERGED_COST
+        assert mean_costs(np.log10([gains]), [20000, 20001], task=get_task("startup"))[0] >= DIVERGED_COST
 
 
 def test_failing_early_never_earns_more_reward_in_v1():

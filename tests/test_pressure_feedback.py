@@ -8,6 +8,7 @@ from millvib_env.control.registry import REFERENCE
 from millvib_env.control.named import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
+from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import run_episodes
 
 BASE = [1.15e6, 8.0e8, 300.0, 1.5e-4]
@@ -88,7 +89,8 @@ def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plant
     from millvib_env.control.factory import control_entry
 
     assert REFERENCE == "pid-pf-robust"
-    assert control_entry(task, "pid-pf-robust")["tuning_cost"] < control_entry(task, "pid-robust")["tuning_cost"]
+    t = get_task(task)
+    assert control_entry(t, "pid-pf-robust")["tuning_cost"] < control_entry(t, "pid-robust")["tuning_cost"]
     assert len(named_gains("pid-pf-robust", task)) == 4 and len(named_gains("pid-pf-ff", task)) == 5
 
 
@@ -99,7 +101,7 @@ def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant
 
     for task in ("startup", "rolling", "change"):
         gains = PIDGains(*named_gains("pid-pf-robust", task))
-        entry = control_entry(task, "pid-oracle")
+        entry = control_entry(get_task(task), "pid-oracle")
         base = load_env_config(task).base_params
         for c1 in entry["c1_grid"]:
             for ct in entry["ct_grid"]:

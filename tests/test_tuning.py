@@ -11,8 +11,9 @@ optuna = pytest.importorskip("optuna")
 @pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
     storage = f"journal:{tmp_path / 'study.log'}"
-    code = ("from millvib_env.training.tuning import tune_optuna; "
-            f"print(tune_optuna([10100, 10101], task='startup', storage={storage!r}, study_name='s', n_trials=2))")
+    code = ("from millvib_env.tasks import get_task; from millvib_env.training.tuning import tune_optuna; "
+            f"print(tune_optuna([10100, 10101], task=get_task('startup'), storage={storage!r}, study_name='s', "
+            "n_trials=2))")
     workers = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                for _ in range(2)]
     for w in workers:

@@ -198,14 +198,13 @@ def _cmd_scenarios(args) -> int:
 
 
 def _cmd_tasks(args) -> int:
-    from millvib_env.tasks import SEED_PURPOSES, get_task, list_tasks
+    from millvib_env.tasks import SEED_PURPOSES, all_tasks
 
     print("| task | env config | " + " | ".join(f"{p} seeds" for p in SEED_PURPOSES) + " | episode |")
     print("|---|---|" + "---|" * len(SEED_PURPOSES) + "---|")
-    for name in list_tasks():
-        t = get_task(name)
+    for t in all_tasks():
         spans = " | ".join(f"{t.seeds[p].start}-{t.seeds[p].stop - 1}" for p in SEED_PURPOSES)
-        print(f"| {name} | {t.config} | {spans} | {t.description} |")
+        print(f"| {t.name} | {t.config} | {spans} | {t.description} |")
     return 0
 
 

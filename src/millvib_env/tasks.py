@@ -14,7 +14,7 @@ from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
-__all__ = ["Task", "get_task", "list_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
+__all__ = ["Task", "get_task", "list_tasks", "all_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
 
 SEED_PURPOSES = ("training", "tuning", "validation", "heldout")
 TASK_ALIASES = {"default": "startup"}
@@ -111,8 +111,16 @@ def list_tasks() -> list[str]:
     return list(_load())
 
 
-def get_task(name: str) -> Task:
-    """The task `name` (``default`` is an alias of ``startup``)."""
+def all_tasks() -> list[Task]:
+    """Every task, in the file's order."""
+    return list(_load().values())
+
+
+def get_task(name: str | Task) -> Task:
+    """The task `name` (``default`` is an alias of ``startup``); a Task as it is. Called where a name enters (the
+    CLI, the API's entry points, a file that names a task); below them a `Task` is passed down."""
+    if isinstance(name, Task):
+        return name
     if not isinstance(name, str):
         raise ValueError(f"task = {name!r} is invalid: one of {list_tasks()}")
     name = TASK_ALIASES.get(name, name)

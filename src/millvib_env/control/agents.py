@@ -16,7 +16,7 @@ from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.registry import baseline_names
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
            "list_agents", "agent_folder", "agent_seeds"]
@@ -96,6 +96,11 @@ def read_card(path: str | Path) -> dict:
     return card
 
 
+def card_task(card: dict) -> Task:
+    """The task a card names (startup where it names none): resolved here, where the name enters from the file."""
+    return get_task(card.get("task", "startup"))
+
+
 def checked_card(folder: str | Path) -> dict:
     """The card of an agent folder, checked as data before any learner library loads: `read_card`'s types,
     the keys every card needs, the algorithm and backend, and env_kwargs that leave the episode alone."""
@@ -112,7 +117,7 @@ def checked_card(folder: str | Path) -> dict:
         raise ValueError(f"{card_path}: env_kwargs {episode_keys} would change the episode the agent meets (its "
                          f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
                          "every controller of a task meets the same plants")
-    if "config" in env_kwargs and env_kwargs["config"] != get_task(card.get("task", "startup")).config:
+    if "config" in env_kwargs and env_kwargs["config"] != card_task(card).config:
         raise ValueError(f"{card_path}: env_kwargs config {env_kwargs['config']!r} is not its task's")
     algo = str(card["algo"]).lower()
     if algo not in ALGOS:
@@ -140,7 +145,7 @@ class AgentPolicy(Controller):
 
     card: dict
     seed: int
-    task: str
+    task: Task
 
     def __init__(self, folder: str | Path):
         from millvib_env.control.manifest import verify_agent
@@ -152,7 +157,7 @@ class AgentPolicy(Controller):
         self.name = self.card.get("name", folder.name)
         self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
-        self.task = self.card.get("task", "startup")
+        self.task = card_task(self.card)
         from millvib_env.control.named import resolve_named_gains
         from millvib_env.envs.batch import env_version
 

@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from millvib_env.envs.actions import GainMap
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["Controller", "PerEnvGains", "GainTable", "ControllerLoop"]
 
@@ -27,12 +27,13 @@ class Controller:
     #: True: an oracle that reads the plant itself (its true state, parameters and disturbances): the
     #: evaluation loop hands it the environments' core with `attach` before the first reset
     reads_plant = False
-    task: str | None = None
+    #: the task it was built for (resolved once where the name entered: `load_controller`, an agent's card)
+    task: Task | None = None
     #: a trained agent's card (`card.json`) and training seed (`control.agents.AgentPolicy`); None for a baseline
     card: dict | None = None
     seed: int | None = None
 
-    def env_kwargs_for(self, task: str | None = None, env_kwargs: dict | None = None) -> dict:
+    def env_kwargs_for(self, task: str | Task | None = None, env_kwargs: dict | None = None) -> dict:
         """The environment keyword arguments this controller runs with on `task`: the task's config,
         then the controller's own settings (its action, observation, training reward), then `env_kwargs`."""
         from millvib_env.envs.config import _merge

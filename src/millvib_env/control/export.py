@@ -80,11 +80,10 @@ def _deployed(agent):
 def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
     """The observations of the agent's own first `steps` steps on its task's first validation plant."""
     from millvib_env.envs.batch import EpisodeBatch
-    from millvib_env.tasks import get_task
     from millvib_env.training.evaluate import env_kwargs_for
 
-    t = get_task(agent.task)
-    venv = EpisodeBatch(agent.env_id, 1, **env_kwargs_for(agent, t.name, None))
+    t = agent.task
+    venv = EpisodeBatch(agent.env_id, 1, **env_kwargs_for(agent, t, None))
     obs = venv.reset([t.seeds["validation"].start])
     seen = []
     for _ in range(steps):
@@ -98,7 +97,7 @@ def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
 
 def _metadata(agent, core) -> dict:
     acts = core.cfg.raw["actions"]
-    meta = {"millvib.agent": agent.name, "millvib.seed": str(agent.seed), "millvib.task": agent.task,
+    meta = {"millvib.agent": agent.name, "millvib.seed": str(agent.seed), "millvib.task": agent.task.name,
             "millvib.env_id": agent.env_id, "millvib.env_kwargs": json.dumps(agent.env_kwargs, sort_keys=True),
             "millvib.observation": json.dumps(list(core.obs_names)),
             "millvib.period_s": repr(core.period_s), "millvib.mode": core.mode}
@@ -171,7 +170,7 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
                          f"{EXPORT_TOLERANCE:g}): not written")
     with atomic_path(out) as tmp:
         Path(tmp).write_bytes(data)
-    summary = {"out": str(out), "agent": agent.name, "seed": agent.seed, "task": agent.task, "inputs": dim,
+    summary = {"out": str(out), "agent": agent.name, "seed": agent.seed, "task": agent.task.name, "inputs": dim,
                "observation": list(core.obs_names), "opset": ONNX_OPSET, "checked_observations": len(obs),
                "max_abs_difference": diff}
     if latency_calls:

@@ -16,12 +16,12 @@ from millvib_env.control.tuned import control_config_path, control_entry, load_c
 from millvib_env.envs.actions import GainMap, task_gain_map
 from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import ENV_VERSIONS, EnvConfig, task_config
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["load_controller", "load_control_config", "control_entry", "control_config_path", "oracle_table"]
 
 
-def load_controller(name: str, task: str | None = None, config: EnvConfig | None = None,
+def load_controller(name: str, task: str | Task | None = None, config: EnvConfig | None = None,
                     seed: int | None = None, version: str = "v0") -> Controller:
     """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>) or
     an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest).
@@ -34,6 +34,7 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
     if config is not None and not isinstance(config, EnvConfig):
         raise ValueError(f"config = {config!r:.60} is invalid: None or an EnvConfig (envs.config.load_env_config)")
+    t = get_task(task if task is not None else "startup")  # the task, once (an agent's default is its own)
     if name not in REGISTRY:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
@@ -43,14 +44,13 @@ def load_controller(name: str, task: str | None = None, config: EnvConfig | None
         if seed not in seeds:
             raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
         agent = AgentPolicy(seeds[seed])
-        if task is not None and get_task(task).name != agent.task:
-            raise ValueError(f"agent {name!r} was trained on task {agent.task!r}, not {get_task(task).name!r}: "
-                             f"run it with task {agent.task!r}")
+        if task is not None and t.name != agent.task.name:
+            raise ValueError(f"agent {name!r} was trained on task {agent.task.name!r}, not {t.name!r}: "
+                             f"run it with task {agent.task.name!r}")
         return agent
-    task = get_task(task if task is not None else "startup").name
-    gain_map = GainMap.from_config(config) if config is not None else task_gain_map(task)
+    gain_map = GainMap.from_config(config) if config is not None else task_gain_map(t)
     entry = REGISTRY[name]
-    ctrl = entry.build(name, task, version, config or task_config(task, version), gain_map)
-    ctrl.task = task
+    ctrl = entry.build(name, t, version, config or task_config(t, version), gain_map)
+    ctrl.task = t
     ctrl.env_id = env_id_for(entry.env_mode, version)
     return ctrl

@@ -15,6 +15,7 @@ from typing import Any, Mapping
 from millvib_env.control.registry import REGISTRY
 from millvib_env.control.tuned import control_entry, entry_gains
 from millvib_env.envs.config import CONFIG_ALIASES
+from millvib_env.tasks import Task, all_tasks, get_task
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains"]
 
@@ -22,12 +23,13 @@ __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "r
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
-def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[float]:
-    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`: its control config
-    entry (`control.tuned.control_entry`, which follows ``from_task``), checked (`control.tuned.entry_gains`); the
-    paper's PID from MillParams' module."""
+def named_gains(name: str, task: str | Task = "startup", version: str = "v0") -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task` (a name or a `Task`) in environment version `version`:
+    its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
+    (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
     from millvib_env.params import PAPER_GAINS
 
+    task = get_task(task)
     if name not in NAMED_GAINS:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
     if name == "pid-paper":
@@ -35,22 +37,21 @@ def named_gains(name: str, task: str = "startup", version: str = "v0") -> list[f
     return entry_gains(task, name, control_entry(task, name, version), version)
 
 
-def task_of_config(config: Any) -> str:
+def task_of_config(config: Any) -> Task:
     """The task whose environment config `config` names (startup for any other config)."""
+    tasks = all_tasks()
     if isinstance(config, str):
-        from millvib_env.tasks import get_task, list_tasks
-
         name = CONFIG_ALIASES.get(config, config)
-        try:
-            for t in list_tasks():
-                if get_task(t).config == name:
-                    return t
-        except ValueError:
-            pass
-    return "startup"
+        for t in tasks:
+            if t.config == name:
+                return t
+    for t in tasks:
+        if t.name == "startup":
+            return t
+    raise ValueError("configs/tasks.yaml has no task 'startup', the task of a config that names none")
 
 
-def _resolve_actions(acts: Any, task: str, version: str) -> Any:
+def _resolve_actions(acts: Any, task: Task, version: str) -> Any:
     """An ``actions`` section with its named gain sets replaced by numbers (a new dict; anything else as given,
     for the env's own checks to refuse)."""
     if not isinstance(acts, Mapping):
@@ -78,7 +79,7 @@ def has_named_gains(env_kwargs: Mapping) -> bool:
     return False
 
 
-def resolve_named_gains(env_kwargs: Mapping, task: str | None = None, version: str | None = None) -> dict:
+def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, version: str | None = None) -> dict:
     """`env_kwargs` (an env's keyword arguments, a card's or a hyperparameter file's ``env_kwargs``) with every
     named gain set replaced by that baseline's gains: in ``actions`` and in a mapping ``config``'s ``actions``.
     `task` defaults to the task whose config ``env_kwargs["config"]`` names, `version` to
@@ -86,10 +87,10 @@ def resolve_named_gains(env_kwargs: Mapping, task: str | None = None, version: s
     out = dict(env_kwargs)
     if not has_named_gains(out):
         return out
-    task = task if task is not None else task_of_config(out.get("config"))
+    t = get_task(task) if task is not None else task_of_config(out.get("config"))
     version = version if version is not None else str(out.get("env_version") or "v0")
     if "actions" in out:
-        out["actions"] = _resolve_actions(out["actions"], task, version)
+        out["actions"] = _resolve_actions(out["actions"], t, version)
     if isinstance(out.get("config"), Mapping) and "actions" in out["config"]:
-        out["config"] = {**out["config"], "actions": _resolve_actions(out["config"]["actions"], task, version)}
+        out["config"] = {**out["config"], "actions": _resolve_actions(out["config"]["actions"], t, version)}
     return out

@@ -26,7 +26,7 @@ import numpy as np
 from millvib_env.control.base import Controller, PerEnvGains, GainTable
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task
 
 __all__ = ["FixedGainPolicy", "OraclePolicy", "LQRPolicy"]
 
@@ -62,14 +62,14 @@ class OraclePolicy(PerEnvGains):
 
     name = "pid-oracle"
 
-    def __init__(self, table: GainTable, gain_map: GainMap, name: str = "pid-oracle", task: str | None = None):
+    def __init__(self, table: GainTable, gain_map: GainMap, name: str = "pid-oracle", config: str = "startup"):
+        """`config`: the task's env config (`Task.config`), whose action a wide table widens."""
         self.table, self.gain_map, self.name = table, gain_map, name
         if table.log_gains.shape[-1] > 3:
             from millvib_env.envs.actions import wide_actions
 
             self.env_kwargs = {"actions": wide_actions(table.log_gains.shape[-1])}
-            self.gain_map = GainMap.from_config(load_env_config(get_task(task or "startup").config,
-                                                                **self.env_kwargs))
+            self.gain_map = GainMap.from_config(load_env_config(config, **self.env_kwargs))
         self._actions = None
 
     def gains_for(self, c1: float, ct: float) -> np.ndarray:
@@ -86,14 +86,14 @@ class LQRPolicy(PerEnvGains):
     ENV_KWARGS = {"actions": {"pressure_feedback": True, "scale": "linear", "kp": [-2.0e7, 2.0e7],
                               "ki": [0.0, 1.0e9], "kd": [0.0, 300.0], "kpl": [0.0, 1.0e-2]}}
 
-    def __init__(self, weights, base_params, task: str, loop=None):
+    def __init__(self, weights, base_params, task: Task, loop=None):
         from millvib_env.control.lqr import lqr_gains
 
         self.weights, self.base_params = weights, base_params
         #: the sampled loop's period (s), for a discrete-time design; None: the continuous design (v0)
         self.dt_s = None if loop is None else loop.dt_s
         self.env_kwargs = dict(self.ENV_KWARGS)
-        self.gain_map = GainMap.from_config(load_env_config(get_task(task).config, **self.env_kwargs))
+        self.gain_map = GainMap.from_config(load_env_config(task.config, **self.env_kwargs))
         self._lqr = lqr_gains
         self._actions = None
         self.clipped = 0

@@ -18,11 +18,12 @@ from millvib_env.control.tuned import control_config_path, control_entry, entry_
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
 from millvib_env.params import PAPER_GAINS
+from millvib_env.tasks import Task
 
 __all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "baseline_names", "fixed_gains"]
 
-#: a builder: (name, task, environment version, the task's env config, its gain map) -> the controller
-Builder = Callable[[str, str, str, EnvConfig, GainMap], Controller]
+#: a builder: (name, the task, environment version, the task's env config, its gain map) -> the controller
+Builder = Callable[[str, Task, str, EnvConfig, GainMap], Controller]
 
 
 @dataclass(frozen=True)
@@ -39,30 +40,30 @@ class Baseline:
     env_mode: str = "gain"
 
 
-def paper_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def paper_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """The paper's PID, the same on every task."""
     return FixedGainPolicy(name, PAPER_GAINS, gain_map, REGISTRY[name].description)
 
 
-def fixed_gains(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def fixed_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """One fixed gain set, from the task's control config entry `name` (its ``gains`` and ``how``)."""
     entry = control_entry(task, name, version)
     return FixedGainPolicy(name, entry_gains(task, name, entry, version), gain_map, entry.get("how", ""))
 
 
-def gain_oracle(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def gain_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """The true plant's gains from the entry's table (`control.base.GainTable`)."""
-    return OraclePolicy(oracle_table(task, name, version), gain_map, name, task)
+    return OraclePolicy(oracle_table(task, name, version), gain_map, name, task.config)
 
 
-def lqr_oracle(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def lqr_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     from millvib_env.control.lqr import LQRWeights
 
     entry = control_entry(task, name, version)
     return LQRPolicy(LQRWeights(**entry["weights"]), cfg.base_params, task, loop=cfg.loop)
 
 
-def adaptive(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def adaptive(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
     entry = control_entry(task, name, version)
@@ -70,7 +71,7 @@ def adaptive(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainM
                           cfg.base_params, sample_rate_hz=cfg.sample_rate_hz)
 
 
-def mpc(name: str, task: str, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`)."""
     from millvib_env.control.mpc import MPCPolicy, MPCSettings
 

@@ -1,5 +1,6 @@
 """The tuned baselines' config files, configs/control/[<version>/]<task>.yaml: the entry of a baseline (following
-`from_task`), its gains and its oracle tables, each checked as data before use."""
+`from_task`), its gains and its oracle tables, each checked as data before use. Every reader takes the `Task`
+(resolved where the name entered); `load_control_config` also takes a name."""
 
 from __future__ import annotations
 
@@ -12,55 +13,59 @@ from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.envs.config import checked_gains
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["control_config_path", "load_control_config", "control_entry", "entry_gains", "oracle_table"]
 
 
-def control_config_path(task: str, version: str = "v0") -> Path:
-    """Where a task's tuned baselines live (a task name or alias): configs/control/<task>.yaml for v0 (the analog
-    loop), configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
+def control_config_path(task: Task, version: str = "v0") -> Path:
+    """Where a task's tuned baselines live: configs/control/<task>.yaml for v0 (the analog loop),
+    configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
     folder = config_dir() / "control"
-    return (folder if version == "v0" else folder / version) / f"{get_task(task).name}.yaml"
+    return (folder if version == "v0" else folder / version) / f"{task.name}.yaml"
 
 
-def load_control_config(task: str = "startup", version: str = "v0") -> dict[str, Any]:
+def load_control_config(task: str | Task = "startup", version: str = "v0") -> dict[str, Any]:
     """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
+    return _read(get_task(task), version)
+
+
+def _read(task: Task, version: str) -> dict[str, Any]:
     path = control_config_path(task, version)
     if not path.is_file():
-        raise ValueError(f"no tuned baselines for task {get_task(task).name!r} in {version}: {path} is missing (run "
-                         f"millvib tune --task {get_task(task).name} --env-version {version} --write-config)")
+        raise ValueError(f"no tuned baselines for task {task.name!r} in {version}: {path} is missing (run "
+                         f"millvib tune --task {task.name} --env-version {version} --write-config)")
     return load_yaml(path, "control config", mapping=True)
 
 
-def control_entry(task: str, name: str, version: str = "v0", _via: tuple = ()) -> dict:
+def control_entry(task: Task, name: str, version: str = "v0", _via: tuple = ()) -> dict:
     """Entry `name` of the task's control config, following `from_task` (a cycle is refused in one line)."""
-    task = get_task(task).name
-    if task in _via:
+    if task.name in _via:
         raise ValueError(f"{control_config_path(task, version)} {name}: from_task runs in a cycle "
-                         f"({' -> '.join(_via + (task,))}); one of them must hold the entry itself")
-    data = load_control_config(task, version)
+                         f"({' -> '.join(_via + (task.name,))}); one of them must hold the entry itself")
+    data = _read(task, version)
     if name not in data:
         raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
-                         f"{task} --env-version {version} --only {name} --write-config)")
+                         f"{task.name} --env-version {version} --only {name} --write-config)")
     entry = data[name]
     if isinstance(entry, dict) and "from_task" in entry:
         if not isinstance(entry["from_task"], str):
             raise ValueError(f"{control_config_path(task, version)} {name}.from_task = {entry['from_task']!r:.60} "
                              "is invalid: a task name")
-        return control_entry(entry["from_task"], name, version, _via + (task,))
+        # the file names a task: resolved here, where the name enters
+        return control_entry(get_task(entry["from_task"]), name, version, _via + (task.name,))
     return entry
 
 
-def entry_gains(task: str, name: str, entry: dict, version: str = "v0") -> list[float]:
+def entry_gains(task: Task, name: str, entry: dict, version: str = "v0") -> list[float]:
     """A fixed-gain entry's gains, checked (`envs.config.checked_gains`): 3-5 finite numbers >= 0."""
     return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
                          f"{control_config_path(task, version)} {name}.gains",
-                         f"run millvib tune --task {get_task(task).name} --env-version {version} --only {name} "
+                         f"run millvib tune --task {task.name} --env-version {version} --only {name} "
                          "--write-config")
 
 
-def oracle_table(task: str, name: str = "pid-oracle", version: str = "v0") -> GainTable:
+def oracle_table(task: Task, name: str = "pid-oracle", version: str = "v0") -> GainTable:
     """The gain table of oracle `name`, checked as data: positive increasing grids of finite numbers and finite
     log10 gains of shape (len(c1_grid), len(ct_grid), 3-5), gains within 1e-12 to 1e15."""
     entry = control_entry(task, name, version)

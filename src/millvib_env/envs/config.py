@@ -585,9 +585,9 @@ def task_config(task: Any, version: str = "v0") -> EnvConfig:
     """The environment config of a task (a name or a `tasks.Task`) in environment version `version`, read
     and validated once per process and configs folder: every caller that needs a task's plant, periods or
     gain bounds shares it (an EnvConfig is frozen; its sections are read, never written)."""
-    from millvib_env.tasks import Task, get_task
+    from millvib_env.tasks import get_task
 
-    t = task if isinstance(task, Task) else get_task(task)
+    t = get_task(task)
     return _task_config(str(config_dir()), t.config, version)
 
 

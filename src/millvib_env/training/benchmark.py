@@ -36,7 +36,7 @@ from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig, task_config
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.training.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
@@ -138,16 +138,18 @@ def distinct_plant_scenarios() -> list[str]:
     return names
 
 
-def episode_records(name: str, task: str, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
+def episode_records(name: str, task: str | Task, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
                     env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[EpisodeRecord]:
     """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep); for an agent,
     its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`. A baseline
-    runs in `env_id`'s version; an agent in its own."""
-    ctrl = load_controller(name, task, seed=agent_seed, version=env_version(env_id))
-    return _run(ctrl, seeds, task, env_kwargs)
+    runs in `env_id`'s version; an agent in its own. A job names its task (it may cross to another process):
+    it is resolved here."""
+    t = get_task(task)
+    ctrl = load_controller(name, t, seed=agent_seed, version=env_version(env_id))
+    return _run(ctrl, seeds, t, env_kwargs)
 
 
-def _run(ctrl: Controller, seeds, task: str, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
+def _run(ctrl: Controller, seeds, task: Task, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
     is_agent = ctrl.card is not None
     recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=task, env_kwargs=env_kwargs, **kw)
     if is_agent:
@@ -160,7 +162,7 @@ def _run(ctrl: Controller, seeds, task: str, env_kwargs: dict | None = None, **k
 CHUNK = 50
 
 
-def _load_units(names: list[str], task: str, all_seeds: bool,
+def _load_units(names: list[str], task: Task, all_seeds: bool,
                 version: str, progress: bool = False) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
@@ -168,7 +170,7 @@ def _load_units(names: list[str], task: str, all_seeds: bool,
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
-    for n in tqdm(names, desc=f"benchmark {task}: loading", unit="controller", disable=not progress, leave=False):
+    for n in tqdm(names, desc=f"benchmark {task.name}: loading", unit="controller", disable=not progress, leave=False):
         first = load_controller(n, task, version=version)
         if first.card is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
@@ -188,7 +190,7 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
-def _collect_records(units: list, loaded: dict, plants: list[int], task: str, env_id: str, ray: str | None,
+def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, env_id: str, ray: str | None,
                      progress: bool) -> dict[tuple, list[EpisodeRecord]]:
     """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as Ray tasks of
     CHUNK episodes (each episode depends only on its seeds, so the records are the same)."""
@@ -196,18 +198,18 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: str, en
     if ray is not None:
         from millvib_env.distributed import run_jobs
 
-        jobs = [{"name": n, "task": task, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
+        jobs = [{"name": n, "task": task.name, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
                 for n, s in units for i in range(0, len(plants), CHUNK)]
-        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {task} (ray)")
+        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {task.name} (ray)")
         for job, part in zip(jobs, parts):
             records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
     else:
-        for unit in tqdm(units, desc=f"benchmark {task}", unit="run", disable=not progress):
+        for unit in tqdm(units, desc=f"benchmark {task.name}", unit="run", disable=not progress):
             records[unit] = _run(loaded[unit], plants, task)
     return records
 
 
-def _scenario_records(ctrl, plant: int, task: str) -> dict[str, dict]:
+def _scenario_records(ctrl, plant: int, task: Task) -> dict[str, dict]:
     """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost."""
     out = {}
     for sc in distinct_plant_scenarios():
@@ -246,18 +248,18 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
-        load_controller(reference, t.name, version=env_version)  # an unknown name fails here, in one line
+        load_controller(reference, t, version=env_version)  # an unknown name fails here, in one line
         names = [reference] + names
-    units, loaded = _load_units(names, t.name, all_seeds, env_version, progress)
+    units, loaded = _load_units(names, t, all_seeds, env_version, progress)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
-    cfg = task_config(t.name, env_version)
+    cfg = task_config(t, env_version)
     result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
                     "env_id": env_id, "env_version": env_version, "loop": loop_description(cfg),
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
                     "scenarios": {}, "records": {}}
     start = time.time()
-    records = _collect_records(units, loaded, plants, t.name, env_id, ray, progress)
+    records = _collect_records(units, loaded, plants, t, env_id, ray, progress)
     for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
                      unit="controller", disable=not progress, leave=False):
         recs = [r for (n, _), part in records.items() if n == name for r in part]
@@ -267,7 +269,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
         result["controllers"][name] = summary
         result["records"][name] = recs
         if scenarios:
-            result["scenarios"][name] = _scenario_records(first, plants[0], t.name)
+            result["scenarios"][name] = _scenario_records(first, plants[0], t)
     if progress:
         print(f"benchmark {t.name}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result)

@@ -35,7 +35,7 @@ import numpy as np
 
 from millvib_env._paths import write_text_atomic
 from millvib_env.control.named import resolve_named_gains
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
 
@@ -61,7 +61,7 @@ def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", ran
             "actions": {"residual_gains": base, "residual_range_v": float(range_v)}}
 
 
-def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: str, seeds: list[int], stats, progress=None,
+def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds: list[int], stats, progress=None,
              baseline=None):
     """Run the student (None: the zero action) on `seeds`; return observations and teacher labels: the residual
     that makes the loop's command the teacher's, or (with a `baseline` oracle) the teacher's command less the
@@ -71,7 +71,7 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: str, seeds: 
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.loop.kernel import K_UCTRL
 
-    venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains({"config": get_task(task).config, **env_kwargs},
+    venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains({"config": task.config, **env_kwargs},
                                                                   task=task, version="v1"))
     core = venv.core
     obs = venv.reset(seeds)
@@ -160,8 +160,8 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample)
-    teacher_ctrl = load_controller(teacher, t.name, version="v1")
-    baseline_ctrl = None if baseline is None else load_controller(baseline, t.name, version="v1")
+    teacher_ctrl = load_controller(teacher, t, version="v1")
+    baseline_ctrl = None if baseline is None else load_controller(baseline, t, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
                 policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(layers), vf=[64, 64])))
@@ -183,7 +183,7 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
     for it in range(iterations):
         seeds = list(range(first + it * episodes, first + (it + 1) * episodes))
-        X, Y = _rollout(student, teacher_ctrl, env_id, kwargs, t.name, seeds, stats, bar, baseline_ctrl)
+        X, Y = _rollout(student, teacher_ctrl, env_id, kwargs, t, seeds, stats, bar, baseline_ctrl)
         X_all.append(X)
         Y_all.append(Y)
         Xc, Yc = np.concatenate(X_all), np.concatenate(Y_all)

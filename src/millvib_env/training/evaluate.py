@@ -17,6 +17,7 @@ from millvib_env._checks import instance, integer, integers, real
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
+from millvib_env.tasks import Task
 
 __all__ = ["run_episodes", "episode_cost", "scored_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS",
            "CSV_FIELDS", "ACTUATOR_FIELDS", "DIVERGED_COST"]
@@ -90,14 +91,14 @@ def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | No
         trk / real("scales['tracking_um']", s["tracking_um"], lo=0.0, lo_open=True)
 
 
-def env_kwargs_for(controller: Controller, task: str | None = None, env_kwargs: dict | None = None) -> dict:
+def env_kwargs_for(controller: Controller, task: str | Task | None = None, env_kwargs: dict | None = None) -> dict:
     """The environment keyword arguments a controller runs with on a task (`Controller.env_kwargs_for`)."""
     return controller.env_kwargs_for(task, env_kwargs)
 
 
 def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,
                  env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
-                 progress: bool = False, desc: str = "", task: str | None = None) -> list[EpisodeRecord]:
+                 progress: bool = False, desc: str = "", task: str | Task | None = None) -> list[EpisodeRecord]:
     """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
 
     `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
@@ -156,7 +157,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
 
 
 def trace_episode(controller: Controller, *, scenario: str | None = None, seed: int = 0,
-                  env_kwargs: dict | None = None, task: str | None = None) -> dict:
+                  env_kwargs: dict | None = None, task: str | Task | None = None) -> dict:
     """One episode with every plant sample kept: t, x, v, a, u and the set-point xd (10 kHz) and, in gain
     mode, the gains of every agent step (empty for valve policies)."""
     from millvib_env.plant.model import A_ACC, A_U, IV, IX

@@ -281,7 +281,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = resolve_named_gains(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task.name,
+    env_kwargs = resolve_named_gains(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task,
                                      env_version(env_id))
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
@@ -400,13 +400,11 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     from millvib_env.training.benchmark import summarize
     from millvib_env.training.evaluate import run_episodes
 
-    from millvib_env.tasks import get_task
-
     folder = Path(folder)
     if card is not None:  # the card is written after this: give the loader what it needs
         write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
     agent = AgentPolicy(folder)
-    first = get_task(agent.task).seeds["validation"].start
+    first = agent.task.seeds["validation"].start
     seeds = list(range(first, first + N_VALIDATION))
     summary = summarize(run_episodes(agent, seeds, task=agent.task))
     keep = ("severity_mean", "tracking_rms_um_mean", "cost_mean", "cost_cvar20", "diverged_rate", "episodes")

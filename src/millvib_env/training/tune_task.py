@@ -75,7 +75,7 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
     try:
         from millvib_env.control.factory import control_entry
 
-        weights = LQRWeights(**control_entry(task.name, "lqr-oracle", version)["weights"])
+        weights = LQRWeights(**control_entry(task, "lqr-oracle", version)["weights"])
     except (ValueError, KeyError, TypeError):
         weights = LQRWeights()
     try:
@@ -100,7 +100,7 @@ def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trial
     for name, s, pinned in (("pid-nominal", seeds["nominal"], NOMINAL_PLANT), ("pid-robust", seeds["robust"], None)):
         if name in todo:
             say(f"tuning {name} with Optuna ({storage}) ...")
-            res = tune_optuna(s, task=t.name, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
+            res = tune_optuna(s, task=t, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
                               params=pinned, version=version)
             out[name] = {**res, "seeds": [s[0], s[-1]],
                          "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
@@ -144,7 +144,7 @@ def _tune_nominal(r: _Run) -> dict:
     from millvib_env.training.tuning import tune
 
     r.say("tuning pid-nominal on the nominal plant ...")
-    res = tune(r.seeds["nominal"], task=r.t.name, params=NOMINAL_PLANT, version=r.version,
+    res = tune(r.seeds["nominal"], task=r.t, params=NOMINAL_PLANT, version=r.version,
                progress=r.bar("pid-nominal"))
     return _gain_entry(res, r.seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, Ct = 5e-16), 8 "
                                                 "disturbance draws")
@@ -154,7 +154,7 @@ def _tune_robust(r: _Run) -> dict:
     from millvib_env.training.tuning import tune
 
     r.say("tuning pid-robust over 32 tuning plants ...")
-    res = tune(r.seeds["robust"], task=r.t.name, version=r.version, progress=r.bar("pid-robust"))
+    res = tune(r.seeds["robust"], task=r.t, version=r.version, progress=r.bar("pid-robust"))
     return _gain_entry(res, r.seeds["robust"], "one set of gains minimising the mean cost over 32 plants of the task")
 
 
@@ -164,7 +164,7 @@ def _tune_pid_oracle(r: _Run) -> dict:
     return _tuned_table(r.t, r.grid, "pid-oracle", r.seeds["oracle"], r.progress, (
         "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
         "(log c1, log Ct) between grid points"),
-        lambda plant: tune(r.seeds["oracle"], task=r.t.name, params=plant, refine_iters=40, version=r.version),
+        lambda plant: tune(r.seeds["oracle"], task=r.t, params=plant, refine_iters=40, version=r.version),
         r.version)
 
 
@@ -172,7 +172,7 @@ def _tune_lqr(r: _Run) -> dict:
     from millvib_env.training.tuning import tune_lqr
 
     r.say("tuning lqr-oracle weights ...")
-    res = tune_lqr(r.seeds["robust"], task=r.t.name, version=r.version)
+    res = tune_lqr(r.seeds["robust"], task=r.t, version=r.version)
     return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
             "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant designs over 32 "
                    "tuning plants"}
@@ -182,7 +182,7 @@ def _tune_adaptive(r: _Run) -> dict:
     from millvib_env.training.tuning import tune_adaptive
 
     r.say("tuning pid-adaptive forgetting time ...")
-    res = tune_adaptive(r.seeds["robust"], task=r.t.name, table=_table(r.current("pid-oracle"), r.version),
+    res = tune_adaptive(r.seeds["robust"], task=r.t, table=_table(r.current("pid-oracle"), r.version),
                         version=r.version)
     return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
             "how": "estimator forgetting time constant with the lowest mean cost over 32 tuning plants; gains "
@@ -193,7 +193,7 @@ def _refined(r: _Run, name: str, starts: np.ndarray, iters: int, how: str) -> di
     """A fixed-gain entry refined by Nelder-Mead from `starts` over the pid-robust plants; says its gains."""
     from millvib_env.training.tuning import tune_from
 
-    res = tune_from(starts, r.seeds["robust"], task=r.t.name, refine_iters=iters, version=r.version,
+    res = tune_from(starts, r.seeds["robust"], task=r.t, refine_iters=iters, version=r.version,
                     progress=r.bar(name))
     entry = _gain_entry(res, r.seeds["robust"], how)
     r.say(f"  {entry['gains']} cost {res.cost:.4f}")
@@ -225,7 +225,7 @@ def _tune_pf_oracle(r: _Run) -> dict:
 
     base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
     return _tuned_table(r.t, r.grid, "pid-pf-oracle", r.seeds["pf-oracle"], r.progress, PF_ORACLE_HOW,
-                        lambda plant: tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t.name, refine_iters=60,
+                        lambda plant: tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t, refine_iters=60,
                                                 step_decades=0.2, params=plant, version=r.version), r.version)
 
 
@@ -241,13 +241,14 @@ ENTRIES = tuple(TUNERS)
 SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 
 
-def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None = None, grid: int = 5,
+def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str | Task | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
               progress: bool = True, version: str = "v0") -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config)."""
     t = get_task(task)
+    shared_from = None if from_task is None else get_task(from_task).name
     r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}))
     todo = list(dict.fromkeys(only or ENTRIES))
     if optuna:
@@ -255,7 +256,7 @@ def tune_task(task: str, only: list[str] | None = None, *, from_task: str | None
     for name, step in TUNERS.items():
         if name not in todo or name in r.out:
             continue
-        r.out[name] = {"from_task": get_task(from_task).name} if from_task and name in SHARED else step(r)
+        r.out[name] = {"from_task": shared_from} if shared_from and name in SHARED else step(r)
     return r.out
 
 
@@ -301,8 +302,8 @@ def _table(entry: dict, version: str = "v0"):
     from millvib_env.control.base import GainTable
     from millvib_env.control.factory import oracle_table
 
-    if "from_task" in entry:
-        return oracle_table(entry["from_task"], version=version)
+    if "from_task" in entry:  # the entry names a task: resolved where the name enters
+        return oracle_table(get_task(entry["from_task"]), version=version)
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
@@ -340,8 +341,6 @@ def tune_from_cli(args) -> int:
     from millvib_env._yaml import load_yaml
 
     t = get_task(args.task)
-    if args.from_task is not None:
-        get_task(args.from_task)  # an unknown task fails here, in one line
     if bool(args.out) == bool(args.write_config):
         raise ValueError("say where the result goes: --out FILE (a copy of the task's control config with the "
                          "tuned entries) or --write-config (configs/control/<task>.yaml itself), not both")
@@ -352,14 +351,14 @@ def tune_from_cli(args) -> int:
     from millvib_env.control.factory import control_config_path
 
     version = args.env_version
-    shipped_path = control_config_path(t.name, version)
+    shipped_path = control_config_path(t, version)
     target = shipped_path if args.write_config else Path(args.out)
     check_output(str(target), "--out")
     shipped = load_yaml(shipped_path, "control config") if shipped_path.is_file() else {}
     if not isinstance(shipped, dict):
         raise ValueError(f"{shipped_path} must be a mapping of entries")
     start = time.time()
-    tuned = tune_task(t.name, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
+    tuned = tune_task(t, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
                       trials=args.trials, shipped=shipped, progress=not args.quiet, version=version)
     merged, notes = merge_entries(shipped, tuned, force=args.force)
     merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um (a diverged episode: at "

@@ -19,7 +19,7 @@ from millvib_env.control.base import Controller
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, task_gain_map, wide_actions
 from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import load_env_config, task_config
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task
 from millvib_env.training.evaluate import run_episodes
 
 __all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable"]
@@ -48,11 +48,11 @@ class ActionTable(Controller):
 PF_BOUNDS = WIDE_BOUNDS
 
 
-def gain_env_kwargs(task: str, n_gains: int, params: dict | None = None) -> dict:
+def gain_env_kwargs(task: Task, n_gains: int, params: dict | None = None) -> dict:
     """The gain-schedule env a tuning runs fixed gain sets of `n_gains` entries in: 3 = PID (the
     task's own action bounds), 4 = + pressure feedback, 5 = + force feedforward (`PF_BOUNDS`).
     `params` pins plant parameters (e.g. the nominal plant)."""
-    env_kwargs: dict = {"config": get_task(task).config}
+    env_kwargs: dict = {"config": task.config}
     if n_gains != 3:
         env_kwargs["actions"] = wide_actions(n_gains)
     if params:  # pin the plant: the randomised parameters are replaced by fixed ones
@@ -60,7 +60,7 @@ def gain_env_kwargs(task: str, n_gains: int, params: dict | None = None) -> dict
     return env_kwargs
 
 
-def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "startup",
+def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task,
                params: dict | None = None, chunk: int = 4096, version: str = "v0") -> np.ndarray:
     """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`,
     in environment version `version`.
@@ -85,7 +85,7 @@ def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: str = "
     return costs.mean(axis=1)
 
 
-def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: dict | None = None,
+def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: Task, params: dict | None = None,
               refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0",
               progress: str | None = None) -> "TuneResult":
     """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
@@ -98,7 +98,7 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: str, params: di
                    xatol=0.01, fatol=1e-4, bounded=True, version=version, progress=progress)
 
 
-def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: str,
+def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: Task,
             params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
             bounded: bool, version: str = "v0", progress: str | None = None) -> "TuneResult":
     """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
@@ -161,7 +161,7 @@ class TuneResult:
         return [float(g) for g in 10.0 ** self.log10_gains]
 
 
-def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = None, grid=GRID,
+def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=GRID,
          refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
     gain_map = task_gain_map(task)
@@ -171,16 +171,16 @@ def tune(seeds: Sequence[int], *, task: str = "startup", params: dict | None = N
                    xatol=0.02, fatol=1e-3, bounded=False, version=version, progress=progress)
 
 
-def plants_of(seeds: Sequence[int], task: str, version: str = "v0") -> list:
+def plants_of(seeds: Sequence[int], task: Task, version: str = "v0") -> list:
     """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
     from millvib_env.envs.batch import EpisodeBatch
 
-    batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=get_task(task).config)
+    batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=task.config)
     batch.reset(seeds)
     return list(batch.core.params)
 
 
-def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: int = 4096,
+def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: Task, chunk: int = 4096,
               version: str = "v0") -> np.ndarray:
     """Mean episode cost of the LQR reference with each of `weight_sets` (LQRWeights) over `seeds`.
 
@@ -190,7 +190,7 @@ def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: str, chunk: 
     from millvib_env.control.lqr import lqr_gains
     from millvib_env.control.policies import LQRPolicy
 
-    env_kwargs: dict[str, Any] = {"config": get_task(task).config, **LQRPolicy.ENV_KWARGS}
+    env_kwargs: dict[str, Any] = {"config": task.config, **LQRPolicy.ENV_KWARGS}
     cfg = load_env_config(**env_kwargs, version=version)
     gain_map = GainMap.from_config(cfg)
     dt_s = None if cfg.loop is None else cfg.loop.dt_s
@@ -223,7 +223,7 @@ LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1
             "r": (0.1, 1.0, 10.0, 100.0), "friction": ("stick", "sliding")}
 
 
-def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40, version: str = "v0") -> dict:
+def tune_lqr(seeds: Sequence[int], *, task: Task, refine_iters: int = 40, version: str = "v0") -> dict:
     """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
     from millvib_env.control.lqr import LQRWeights
 
@@ -261,7 +261,7 @@ def tune_lqr(seeds: Sequence[int], *, task: str, refine_iters: int = 40, version
 ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
 
 
-def tune_adaptive(seeds: Sequence[int], *, task: str, taus: Sequence[float] = ADAPTIVE_TAUS, table=None,
+def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = ADAPTIVE_TAUS, table=None,
                   version: str = "v0") -> dict:
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
@@ -301,7 +301,7 @@ def optuna_storage(storage: str):
         raise ValueError(f"--optuna {storage!r} cannot be opened: {first[:200]}") from None
 
 
-def tune_optuna(seeds: Sequence[int], *, task: str, storage: str, study_name: str, n_trials: int,
+def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: str, n_trials: int,
                 params: dict | None = None, sampler_seed: int | None = None, version: str = "v0") -> dict:
     """PID gains by an Optuna study (TPE) over log10 KP, KI, KD in the action bounds, minimising the
     mean cost on `seeds`; several processes or machines running this with the same storage and
