@@ -436,3 +436,55 @@ def test_every_task_config_has_its_own_id_that_runs_the_same_episodes():
         other = "startup" if config != "startup" else "rolling"
         with pytest.raises(ValueError, match="contradicts"):
             make_vec_env(env_id, 1, config=other)
+
+
+class _CoilWeld:
+    """The manual's example: a 5 % force bump for 20 ms at a random time (docs/environments.md)."""
+
+    def apply(self, rng, profile, params):
+        k = int(rng.uniform(0.1, 0.4) / profile.dt)
+        profile.dFL[k:k + int(0.02 / profile.dt)] += 0.05 * params.FL
+        profile.events.append(("weld", k * profile.dt, 0.05 * params.FL))
+
+
+class _Poison:
+    def apply(self, rng, profile, params):
+        profile.xd[3] = np.nan
+
+
+@pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v1", "MillVib-Valve-v0"])
+def test_a_users_disturbance_runs_after_the_configs_and_leaves_their_draws_as_they_were(env_id):
+    from millvib_env.envs.disturbances import Disturbance
+
+    assert isinstance(_CoilWeld(), Disturbance)
+    plain = gym.make(env_id, config="rolling")
+    welded = gym.make(env_id, config="rolling", extra_disturbances=[_CoilWeld()])
+    _, info_plain = plain.reset(seed=7)
+    _, info_welded = welded.reset(seed=7)
+    a, b = plain.unwrapped.core, welded.unwrapped.core
+    weld = [e for e in info_welded["disturbances"] if e[0] == "weld"]
+    assert len(weld) == 1 and info_welded["disturbances"][:-1] == info_plain["disturbances"]
+    assert np.array_equal(a.XD[0], b.XD[0]) and a.params[0] == b.params[0]  # the config's draws, unchanged
+    bump = b.DFL[0] - a.DFL[0]
+    k = int(round(weld[0][1] / b.cfg.control_dt_s))
+    assert bump[k] == pytest.approx(0.05 * b.params[0].FL) and np.count_nonzero(bump) == int(0.02 / b.cfg.control_dt_s)
+    action = plain.action_space.sample() * 0.0
+    for _ in range(3):
+        plain.step(action)
+        welded.step(action)
+    # the same through the VecEnv
+    venv = millvib_env.make_vec_env(env_id, 2, seed=7, config="rolling", extra_disturbances=[_CoilWeld()])
+    venv.reset()
+    assert np.array_equal(venv.unwrapped.core.DFL[0], b.DFL[0])
+
+
+def test_a_users_disturbance_that_is_no_disturbance_or_writes_nan_is_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"extra_disturbances\[0\]") as info:
+        gym.make("MillVib-GainSchedule-v1", extra_disturbances=[object()])
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="extra_disturbances = "):
+        gym.make("MillVib-GainSchedule-v1", extra_disturbances=_CoilWeld())
+    env = gym.make("MillVib-GainSchedule-v1", extra_disturbances=[_Poison()])
+    with pytest.raises(ValueError, match=r"profile\.xd") as info:
+        env.reset(seed=0)
+    assert "\n" not in str(info.value)

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import gymnasium as gym
 
 from millvib_env._checks import seed_or_none
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.disturbances import Disturbance
 
 __all__ = ["MillVibEnv", "GainScheduleEnv", "ValveEnv"]
 
@@ -21,13 +22,14 @@ class MillVibEnv(gym.Env):
 
     def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 render_mode: str | None = None, env_version: str = "v0", **overrides: Any):
+                 render_mode: str | None = None, env_version: str = "v0",
+                 extra_disturbances: Sequence[Disturbance] | None = None, **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase)
+                                observe_phase=observe_phase, extra_disturbances=extra_disturbances)
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
@@ -189,6 +191,26 @@ class GainScheduleEnv(MillVibEnv):
     child of the episode's ``SeedSequence``. ``render_mode="rgb_array"`` or ``"human"`` draws the recent
     displacement, velocity and gains (or valve command) with the severity so far; it works with
     ``gymnasium.wrappers.RecordVideo``.
+
+    ### Your own disturbance
+
+    ``extra_disturbances=[...]`` (every environment, the VecEnv and the vector env take it) adds disturbances
+    of your own after the config's: objects with a method ``apply(rng, profile, params)``
+    (``millvib_env.envs.disturbances.Disturbance``). At each reset each draws from ``rng`` (the episode's
+    disturbance stream, after the config's disturbances, so their draws are unchanged) and writes into the
+    episode's ``profile``: the set-point ``profile.xd`` (m) and the rolling-force offset ``profile.dFL`` (N),
+    one value per control period of ``profile.dt`` s, changed in place, and an event for the reset's info.
+    A profile left with a non-finite value or another length is refused in one line.
+
+    ```python
+    class CoilWeld:  # a weld seam passes the roll gap: a 5 % force bump for 20 ms at a random time
+        def apply(self, rng, profile, params):
+            k = int(rng.uniform(0.1, 0.4) / profile.dt)
+            profile.dFL[k:k + int(0.02 / profile.dt)] += 0.05 * params.FL
+            profile.events.append(("weld", k * profile.dt, 0.05 * params.FL))
+
+    env = gym.make("MillVib-GainSchedule-v1", config="rolling", extra_disturbances=[CoilWeld()])
+    ```
 
     ## Version History
 

@@ -15,7 +15,7 @@ and sensor noise each draw from their own child of that seed's SeedSequence.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -24,7 +24,7 @@ from gymnasium.utils import seeding
 from millvib_env._checks import as_float, shown
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
-from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances
+from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances, user_disturbances
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
@@ -59,7 +59,8 @@ class MillVibCore:
     """N episodes of the screw-down plant in one of two modes: 'gain' or 'valve'."""
 
     def __init__(self, n: int, mode: str, config: EnvConfig, *, residual: bool = False,
-                 observe_params: bool | None = None, observe_phase: bool | None = None):
+                 observe_params: bool | None = None, observe_phase: bool | None = None,
+                 extra_disturbances: Sequence | None = None):
         if mode not in ("gain", "valve"):
             raise ValueError(f"mode = {mode!r} is invalid: 'gain' or 'valve'")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
@@ -95,6 +96,8 @@ class MillVibCore:
                              f"{as_float(need) / 2**30:.1f} GiB of episode records; allowed up to "
                              f"{MAX_BATCH_BYTES / 2**30:.0f} GiB: use fewer environments or shorter episodes")
         self.disturbances, noise, delay = build_disturbances(raw["disturbances"])
+        self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
+        self.disturbances += user_disturbances(extra_disturbances)
 
         acts = raw["actions"]
         self.gain_map = GainMap.from_config(config)
@@ -190,7 +193,7 @@ class MillVibCore:
         if seed is not None:
             self.seed_env(i, seed)
         episode_seed = int(self.np_random[i].integers(2**63 - 1))
-        ep = draw_episode(self.cfg, self.disturbances, episode_seed, self.n_ctrl, options)
+        ep = draw_episode(self.cfg, self.disturbances, episode_seed, self.n_ctrl, options, self.n_builtin)
         params, profile = ep.params, ep.profile
         self.observer.start_noise(i, ep.noise_rng, self.max_steps + 1)  # an observation at reset and per step
         self.params[i] = params

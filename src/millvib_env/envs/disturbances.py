@@ -6,20 +6,27 @@ control period): set-point xd (m) and rolling-force offset dFL (N). Roll eccentr
 sinusoidal force whose amplitude, frequency and phase are drawn per episode; a plant change moves
 c1 and Ct during the episode (`PlantChange`, integrated by the plant's own equations); sensor noise
 and delay act on the observation. The config's keys are checked in `envs.config`.
+
+A user's own disturbance is any object with the `Disturbance` method `apply(rng, profile, params)`, given to an
+environment as ``extra_disturbances=[...]``: it runs after the config's disturbances, from the same stream, so
+the config's draws are the same with it or without it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
 
 import math
 
 import numpy as np
 
+from millvib_env._checks import shown
+from millvib_env.params import MillParams
 from millvib_env.plant.model import PlantChange
 
-__all__ = ["EpisodeProfile", "SetpointSteps", "ForceSteps", "Eccentricity", "ParameterChange", "SensorNoise",
-           "build_disturbances"]
+__all__ = ["EpisodeProfile", "Disturbance", "SetpointSteps", "ForceSteps", "Eccentricity", "ParameterChange",
+           "SensorNoise", "build_disturbances", "user_disturbances", "check_profile"]
 
 
 @dataclass
@@ -39,6 +46,41 @@ class EpisodeProfile:
     def __post_init__(self):
         self.xd = np.zeros(self.n)
         self.dFL = np.zeros(self.n)
+
+
+@runtime_checkable
+class Disturbance(Protocol):
+    """What a disturbance does at each reset: draw this episode's realisation from `rng` (the episode's
+    disturbance stream: the config's disturbances draw first, then a user's, in order) and write it into
+    `profile` (`EpisodeProfile`): the set-point `profile.xd` (m) and the rolling-force offset `profile.dFL` (N),
+    one finite value per control period of `profile.dt` s (change them in place: their length is the episode's),
+    and an event ``(kind, time_s, value)`` in `profile.events`, which the reset's info reports. `params` is the
+    episode's plant. The built-in ones below are `Disturbance`s; a user passes their own to any environment as
+    ``extra_disturbances=[...]`` (docs/environments.md, "Your own disturbance")."""
+
+    def apply(self, rng: np.random.Generator, profile: EpisodeProfile, params: MillParams) -> None: ...
+
+
+def user_disturbances(items: Any) -> list:
+    """An environment's ``extra_disturbances``, checked: None or a list (or tuple) of `Disturbance` objects."""
+    what = "a list of objects with an apply(rng, profile, params) method (envs.disturbances.Disturbance)"
+    if items is None:
+        return []
+    if not isinstance(items, (list, tuple)):
+        raise ValueError(f"extra_disturbances = {shown(items)} is invalid: {what}")
+    for k, d in enumerate(items):
+        if not callable(getattr(d, "apply", None)):
+            raise ValueError(f"extra_disturbances[{k}] = {shown(d)} is invalid: {what}")
+    return list(items)
+
+
+def check_profile(profile: EpisodeProfile, n: int, who: Any) -> None:
+    """After `who` applied itself: the profile's set-point and force are still n finite values each."""
+    for name in ("xd", "dFL"):
+        values = getattr(profile, name)
+        if not isinstance(values, np.ndarray) or values.shape != (n,) or not np.all(np.isfinite(values)):
+            raise ValueError(f"disturbance {shown(who)} left profile.{name} invalid: {n} finite values (change "
+                             "the array in place)")
 
 
 def _range(spec, key):

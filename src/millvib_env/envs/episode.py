@@ -16,7 +16,7 @@ import numpy as np
 
 from millvib_env._checks import as_float, shown
 from millvib_env.envs.config import EnvConfig
-from millvib_env.envs.disturbances import EpisodeProfile
+from millvib_env.envs.disturbances import EpisodeProfile, check_profile
 from millvib_env.params import PARAM_FIELDS, MillParams
 from millvib_env.plant.model import initial_state, settled_state
 
@@ -73,8 +73,10 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
 
 
 def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctrl: int,
-                 options: dict[str, Any]) -> Episode:
-    """Draw the episode of `episode_seed` (options already checked by `check_reset_options`)."""
+                 options: dict[str, Any], n_builtin: int | None = None) -> Episode:
+    """Draw the episode of `episode_seed` (options already checked by `check_reset_options`). The first
+    `n_builtin` of `disturbances` are the config's (default: all), the rest a user's (`extra_disturbances`)."""
+    n_builtin = len(disturbances) if n_builtin is None else n_builtin
     plant_ss, dist_ss, noise_ss, loop_ss = np.random.SeedSequence(episode_seed).spawn(4)
     plant_rng, dist_rng = np.random.default_rng(plant_ss), np.random.default_rng(dist_ss)
     initial = config.initial
@@ -101,8 +103,10 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     x0 = x0 + (plant_rng.uniform(-jitter, jitter) if jitter else 0.0)
 
     profile = EpisodeProfile(n_ctrl, config.control_dt_s)
-    for d in disturbances:
+    for k, d in enumerate(disturbances):
         d.apply(dist_rng, profile, params)
+        if k >= n_builtin:  # a user's disturbance: what it wrote is checked (the built-in ones write finite values)
+            check_profile(profile, n_ctrl, d)
     rate = initial.setpoint_ramp_m_s
     if rate > 0 and x0 != 0.0:  # the reference generator leads the set-point from x0 back to 0
         t = np.arange(profile.n) * profile.dt
