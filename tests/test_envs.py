@@ -488,3 +488,36 @@ def test_a_users_disturbance_that_is_no_disturbance_or_writes_nan_is_refused_in_
     with pytest.raises(ValueError, match=r"profile\.xd") as info:
         env.reset(seed=0)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v1", "MillVib-Valve-v1"])
+def test_a_users_reward_replaces_the_configs_and_leaves_the_observations_as_they_were(env_id):
+    seen = []
+
+    def quiet_first(terms):
+        seen.append(terms)
+        return -terms.vibration_rms_m_s * 1e3 - 100.0 * terms.terminated
+
+    plain = gym.make(env_id, config="rolling")
+    own = gym.make(env_id, config="rolling", reward_fn=quiet_first)
+    obs_a, _ = plain.reset(seed=3)
+    obs_b, _ = own.reset(seed=3)
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        action = rng.uniform(-0.3, 0.3, plain.action_space.shape).astype(np.float32)
+        obs_a, r_a, *_ = plain.step(action)
+        obs_b, r_b, *_ = own.step(action)
+        assert np.array_equal(obs_a, obs_b)
+        assert r_b == pytest.approx(-seen[-1].vibration_rms_m_s[0] * 1e3) and r_a == seen[-1].config_reward[0]
+        assert r_a != r_b
+
+
+@pytest.mark.parametrize("bad", [lambda terms: np.nan, lambda terms: "x", lambda terms: [1.0, 2.0]])
+def test_a_users_reward_that_is_not_one_finite_number_per_env_is_refused_in_one_line(bad):
+    env = gym.make("MillVib-GainSchedule-v1", reward_fn=bad)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="reward_fn") as info:
+        env.step(env.action_space.sample() * 0)
+    assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="reward_fn = 3"):
+        gym.make("MillVib-GainSchedule-v1", reward_fn=3)

@@ -10,6 +10,7 @@ from millvib_env._checks import seed_or_none
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.envs.disturbances import Disturbance
+from millvib_env.envs.reward import RewardFunction
 
 __all__ = ["MillVibEnv", "GainScheduleEnv", "ValveEnv"]
 
@@ -23,13 +24,15 @@ class MillVibEnv(gym.Env):
     def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  render_mode: str | None = None, env_version: str = "v0",
-                 extra_disturbances: Sequence[Disturbance] | None = None, **overrides: Any):
+                 extra_disturbances: Sequence[Disturbance] | None = None, reward_fn: RewardFunction | None = None,
+                 **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase, extra_disturbances=extra_disturbances)
+                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
+                                reward_fn=reward_fn)
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
@@ -210,6 +213,22 @@ class GainScheduleEnv(MillVibEnv):
             profile.events.append(("weld", k * profile.dt, 0.05 * params.FL))
 
     env = gym.make("MillVib-GainSchedule-v1", config="rolling", extra_disturbances=[CoilWeld()])
+    ```
+
+    ### Your own reward
+
+    ``reward_fn=`` (every environment, the VecEnv and the vector env take it) replaces the config's reward by
+    yours: a callable that takes the period's terms (``millvib_env.envs.reward.RewardTerms``, one value per
+    environment: ``vibration_rms_m_s``, ``tracking_rms_m``, ``effort``, ``offset``, ``terminated``,
+    ``steps_left`` and ``config_reward``) and returns one finite reward per environment; anything else is
+    refused in one line. The observation's running vibration measure and every metric in the info are the
+    same with it or without it; the info's ``episode_return`` sums your rewards.
+
+    ```python
+    def quiet_first(terms):  # vibration only, in mm/s, and a flat 100 for leaving the envelope
+        return -terms.vibration_rms_m_s * 1e3 - 100.0 * terms.terminated
+
+    env = gym.make("MillVib-GainSchedule-v1", config="rolling", reward_fn=quiet_first)
     ```
 
     ## Version History

@@ -60,7 +60,7 @@ class MillVibCore:
 
     def __init__(self, n: int, mode: str, config: EnvConfig, *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 extra_disturbances: Sequence | None = None):
+                 extra_disturbances: Sequence | None = None, reward_fn: Any = None):
         if mode not in ("gain", "valve"):
             raise ValueError(f"mode = {mode!r} is invalid: 'gain' or 'valve'")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
@@ -112,7 +112,8 @@ class MillVibCore:
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
-        self.reward = Reward(config.reward, period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n)
+        self.reward = Reward(config.reward, period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n,
+                             user=reward_fn)
         env = config.envelope
         self.x_max, self.p_min, self.p_max_factor = env.x_max_m, env.p_min_pa, env.p_max_factor
 
@@ -309,7 +310,7 @@ class MillVibCore:
         last = self.YS[:, -1, :]
         ps = self.P[:, P_PS]
         terminated = failed | (x_abs > self.x_max) | (pl_lo < self.p_min) | (pl_hi > self.p_max_factor * ps)
-        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and self.reward.w_off else None
+        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and (self.reward.w_off or self.reward.user) else None
         reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset, remaining=self.max_steps - self.k - 1)
         self.sq_err_sum += err_ms * self.n_samp
         self.k += 1

@@ -10,17 +10,52 @@ the mean squared action: with a relative action, how far the gains are from thei
 P (``terminal_penalty``) is paid once when an episode leaves its envelope, and P_s
 (``terminal_per_step``, v1: `DIVERGED_COST`) for each of the n_left steps it did not run, so an
 episode that fails early never earns more than one that runs to its end at that cost per step.
+
+A user's own reward is any callable ``reward(terms) -> rewards`` (`RewardFunction`), given to an environment as
+``reward_fn=``: it gets the period's terms (`RewardTerms`, the config's reward among them) and returns one
+finite reward per environment, which the env returns in its place. The observation's running vibration measure
+is the config's either way.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
+from millvib_env._checks import shown
 from millvib_env.envs.config import RewardSettings
 
-__all__ = ["Reward", "DIVERGED_COST"]
+__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
+
+
+@dataclass(frozen=True)
+class RewardTerms:
+    """One agent period's terms, one value per environment (arrays of shape (n,))."""
+
+    vibration_rms_m_s: np.ndarray  # RMS of the band-limited (severity band) piston velocity over the period (m/s)
+    tracking_rms_m: np.ndarray     # RMS of the position error xd - x over the period (m)
+    effort: np.ndarray             # mean |change of the gain action| (gain mode) or squared valve action (valve)
+    offset: np.ndarray             # mean squared gain action (gain mode; zeros in valve mode)
+    terminated: np.ndarray         # the episode left its envelope (or its integration failed) in this period
+    steps_left: np.ndarray         # the agent steps the episode had left after this one
+    config_reward: np.ndarray      # the config's reward for the period (what the env returns without reward_fn)
+
+
+class RewardFunction(Protocol):
+    """A user's reward (``reward_fn=`` of every environment): the period's terms -> one finite reward per env."""
+
+    def __call__(self, terms: RewardTerms) -> Any: ...
+
+
+def user_reward(fn: Any) -> RewardFunction | None:
+    """An environment's ``reward_fn``, checked: None or a callable."""
+    if fn is not None and not callable(fn):
+        raise ValueError(f"reward_fn = {shown(fn)} is invalid: None or a callable reward(terms) -> one reward per "
+                         "environment (envs.reward.RewardFunction)")
+    return fn
 
 #: what an episode that leaves its envelope (or whose integration fails) costs at least, in the
 #: benchmark's cost units (severity / 4.5 mm/s + tracking RMS / 10 um): twice the tracking cost of
@@ -33,7 +68,10 @@ DIVERGED_COST = 1000.0
 class Reward:
     """Reward weights and the band-pass filter state of a batch of environments."""
 
-    def __init__(self, spec: RewardSettings, *, period_s: float, sample_rate_hz: float, n: int):
+    def __init__(self, spec: RewardSettings, *, period_s: float, sample_rate_hz: float, n: int,
+                 user: RewardFunction | None = None):
+        #: a user's reward (``reward_fn``), returned in place of the config's
+        self.user = user_reward(user)
         self.w_vib, self.w_trk, self.w_eff = spec.w_vibration, spec.w_tracking, spec.w_effort
         self.w_off = float(spec.w_offset)
         self.vib_scale = spec.vibration_scale_mm_s * 1e-3
@@ -66,7 +104,25 @@ class Reward:
             reward = reward - self.w_off * offset
         if self.penalty_per_step and remaining is not None:
             reward = reward - self.penalty_per_step * np.maximum(remaining, 0) * terminated
+        if self.user is not None:
+            reward = self._users(vib_ms, err_ms, effort, terminated, offset, remaining, reward)
         return reward
+
+    def _users(self, vib_ms, err_ms, effort, terminated, offset, remaining, reward) -> np.ndarray:
+        n = reward.shape[0]
+        terms = RewardTerms(np.sqrt(vib_ms), np.sqrt(err_ms), np.asarray(effort, float),
+                            np.zeros(n) if offset is None else offset, np.asarray(terminated, bool),
+                            np.zeros(n, int) if remaining is None else np.maximum(remaining, 0), reward.copy())
+        assert self.user is not None
+        out = self.user(terms)
+        try:
+            values = np.broadcast_to(np.asarray(out, dtype=np.float64), (n,)).copy()
+        except (TypeError, ValueError, OverflowError):
+            values = np.full(n, np.nan)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"reward_fn {shown(self.user)} returned {shown(out)}: one finite reward per environment "
+                             f"({n}) is needed")
+        return values
 
     @property
     def vib_rms(self) -> np.ndarray:
