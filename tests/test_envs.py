@@ -521,3 +521,31 @@ def test_a_users_reward_that_is_not_one_finite_number_per_env_is_refused_in_one_
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="reward_fn = 3"):
         gym.make("MillVib-GainSchedule-v1", reward_fn=3)
+
+
+def test_a_users_envelope_ends_an_episode_as_the_configs_does_and_is_checked():
+    calls = []
+
+    def at_step_three(terms):
+        calls.append(terms)
+        return terms.t_s > 2.5 * 0.01  # GainSchedule-v1: 10 ms agent periods
+
+    plain = gym.make("MillVib-GainSchedule-v1", config="rolling")
+    own = gym.make("MillVib-GainSchedule-v1", config="rolling", envelope_fn=at_step_three)
+    plain.reset(seed=5)
+    own.reset(seed=5)
+    action = plain.action_space.sample() * 0
+    for k in range(3):
+        obs_a, _, term_a, _, info_a = plain.step(action)
+        obs_b, _, term_b, _, info_b = own.step(action)
+        assert np.array_equal(obs_a, obs_b) and not term_a
+        assert term_b == (k == 2) and not calls[-1].left_config[0]
+    assert info_b["diverged"] and info_b["episode_steps"] == 3 and "diverged" not in info_a
+    for bad in (lambda terms: "yes", lambda terms: [True, False], lambda terms: 0.5):
+        env = gym.make("MillVib-GainSchedule-v1", envelope_fn=bad)
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="envelope_fn") as info:
+            env.step(action)
+        assert "\n" not in str(info.value)
+    with pytest.raises(ValueError, match="envelope_fn = 'no'"):
+        gym.make("MillVib-GainSchedule-v1", envelope_fn="no")

@@ -10,6 +10,7 @@ from millvib_env._checks import seed_or_none
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.envs.disturbances import Disturbance
+from millvib_env.envs.envelope import EnvelopeFunction
 from millvib_env.envs.reward import RewardFunction
 
 __all__ = ["MillVibEnv", "GainScheduleEnv", "ValveEnv"]
@@ -25,14 +26,14 @@ class MillVibEnv(gym.Env):
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  render_mode: str | None = None, env_version: str = "v0",
                  extra_disturbances: Sequence[Disturbance] | None = None, reward_fn: RewardFunction | None = None,
-                 **overrides: Any):
+                 envelope_fn: EnvelopeFunction | None = None, **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn)
+                                reward_fn=reward_fn, envelope_fn=envelope_fn)
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
@@ -229,6 +230,22 @@ class GainScheduleEnv(MillVibEnv):
         return -terms.vibration_rms_m_s * 1e3 - 100.0 * terms.terminated
 
     env = gym.make("MillVib-GainSchedule-v1", config="rolling", reward_fn=quiet_first)
+    ```
+
+    ### Your own envelope
+
+    ``envelope_fn=`` (every environment, the VecEnv and the vector env take it) adds constraints of yours to the
+    config's envelope: a callable that takes the period's terms (``millvib_env.envs.envelope.EnvelopeTerms``,
+    one value per environment: ``x_abs_max_m``, ``pl_min_pa``, ``pl_max_pa``, ``x_m``, ``v_m_s``, ``pl_pa``,
+    ``t_s`` and ``left_config``) and returns, per environment, whether the episode left it (True or False;
+    anything else is refused in one line). An episode that leaves it ends as one that leaves the config's
+    envelope: terminated, and scored as diverged.
+
+    ```python
+    def tight_gap(terms):  # a strip that tolerates 50 um of gap error once rolling has settled
+        return (terms.t_s > 0.1) & (terms.x_abs_max_m > 50e-6)
+
+    env = gym.make("MillVib-GainSchedule-v1", config="rolling", envelope_fn=tight_gap)
     ```
 
     ## Version History

@@ -73,11 +73,12 @@ class EpisodeBatch:
 
     def __init__(self, env_id: str, n: int, *, config: str | dict | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 extra_disturbances: Sequence | None = None, reward_fn: Any = None, **overrides: Any):
+                 extra_disturbances: Sequence | None = None, reward_fn: Any = None,
+                 envelope_fn: Any = None, **overrides: Any):
         self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
         self.core = MillVibCore(n, env_mode(env_id), self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn)
+                                reward_fn=reward_fn, envelope_fn=envelope_fn)
         self.n = n
         self.reset_infos: list[dict] = [{} for _ in range(n)]
 

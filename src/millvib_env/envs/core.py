@@ -25,6 +25,7 @@ from millvib_env._checks import as_float, shown
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances, user_disturbances
+from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
@@ -60,7 +61,7 @@ class MillVibCore:
 
     def __init__(self, n: int, mode: str, config: EnvConfig, *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 extra_disturbances: Sequence | None = None, reward_fn: Any = None):
+                 extra_disturbances: Sequence | None = None, reward_fn: Any = None, envelope_fn: Any = None):
         if mode not in ("gain", "valve"):
             raise ValueError(f"mode = {mode!r} is invalid: 'gain' or 'valve'")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
@@ -116,6 +117,7 @@ class MillVibCore:
                              user=reward_fn)
         env = config.envelope
         self.x_max, self.p_min, self.p_max_factor = env.x_max_m, env.p_min_pa, env.p_max_factor
+        self.envelope_fn = user_envelope(envelope_fn)
 
         # per-environment state
         n = self.n
@@ -310,6 +312,8 @@ class MillVibCore:
         last = self.YS[:, -1, :]
         ps = self.P[:, P_PS]
         terminated = failed | (x_abs > self.x_max) | (pl_lo < self.p_min) | (pl_hi > self.p_max_factor * ps)
+        if self.envelope_fn is not None:  # a user's own constraints, on top of the config's envelope
+            terminated = terminated | self._users_envelope(x_abs, pl_lo, pl_hi, last, terminated)
         offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and (self.reward.w_off or self.reward.user) else None
         reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset, remaining=self.max_steps - self.k - 1)
         self.sq_err_sum += err_ms * self.n_samp
@@ -435,6 +439,13 @@ class MillVibCore:
         """The roll eccentricity's force (N) at times t, as `plant_rhs` applies it (`idx`: an environment
         or an array of them)."""
         return self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * t + self.C[idx, C_EP])
+
+    def _users_envelope(self, x_abs, pl_lo, pl_hi, last, terminated) -> np.ndarray:
+        """Whether each environment left the user's envelope (`envs.envelope`) in this period."""
+        assert self.envelope_fn is not None
+        terms = EnvelopeTerms(x_abs.copy(), pl_lo.copy(), pl_hi.copy(), last[:, IX].copy(), last[:, IV].copy(),
+                              last[:, IPL].copy(), self.T.copy(), terminated.copy())
+        return left_flags(self.envelope_fn, terms, self.n)
 
     def episode_metrics(self, i: int, terminated: bool) -> dict:
         """Episode-end metrics of environment i (`episode_metrics_batch` of one environment)."""

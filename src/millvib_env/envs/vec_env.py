@@ -30,7 +30,8 @@ class MillVibVecEnv(VecEnv):
     def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
                  config: str | dict | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 extra_disturbances: Sequence | None = None, reward_fn: Any = None, **overrides: Any):
+                 extra_disturbances: Sequence | None = None, reward_fn: Any = None,
+                 envelope_fn: Any = None, **overrides: Any):
         mode = env_mode(env_id)
         if render_mode not in (None, "rgb_array", "human"):
             raise ValueError(f"render_mode = {render_mode!r} is invalid")
@@ -39,7 +40,7 @@ class MillVibVecEnv(VecEnv):
         self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
         self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn)
+                                reward_fn=reward_fn, envelope_fn=envelope_fn)
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)
         self._actions: np.ndarray | None = None
         self._figure = None

@@ -32,14 +32,14 @@ class MillVibVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *, config: str | dict | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, env_version: str = "v0",
                  render_mode: str | None = None, extra_disturbances: Sequence | None = None, reward_fn: Any = None,
-                 **overrides: Any):
+                 envelope_fn: Any = None, **overrides: Any):
         if render_mode is not None:
             raise ValueError(f"render_mode = {render_mode!r} is invalid for the vector environment: None (render "
                              "one environment: gym.make)")
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(num_envs, self.mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn)
+                                reward_fn=reward_fn, envelope_fn=envelope_fn)
         self.num_envs = self.core.n
         self.single_observation_space = self.core.observation_space
         self.single_action_space = self.core.action_space
