@@ -85,6 +85,13 @@ def choice(name: str, value: Any, choices: Sequence[Any]) -> Any:
     return value
 
 
+def callable_or_none(name: str, value: Any, what: str) -> Any:
+    """None or a callable (described to the user as `what`): a user's function handed to an environment."""
+    if value is not None and not callable(value):
+        _fail(name, value, f"None or {what}")
+    return value
+
+
 def instance(name: str, value: Any, kind: type | tuple[type, ...], what: str) -> Any:
     """An instance of `kind` (described to the user as `what`)."""
     if not isinstance(value, kind):

@@ -13,7 +13,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from millvib_env._checks import shown
+from millvib_env._checks import callable_or_none, shown
 
 __all__ = ["EnvelopeTerms", "EnvelopeFunction", "user_envelope", "left_flags"]
 
@@ -40,10 +40,8 @@ class EnvelopeFunction(Protocol):
 
 def user_envelope(fn: Any) -> EnvelopeFunction | None:
     """An environment's ``envelope_fn``, checked: None or a callable."""
-    if fn is not None and not callable(fn):
-        raise ValueError(f"envelope_fn = {shown(fn)} is invalid: None or a callable envelope(terms) -> whether each "
-                         "environment left it (envs.envelope.EnvelopeFunction)")
-    return fn
+    return callable_or_none("envelope_fn", fn, "a callable envelope(terms) -> whether each environment left it "
+                                               "(envs.envelope.EnvelopeFunction)")
 
 
 def left_flags(fn: EnvelopeFunction, terms: EnvelopeTerms, n: int) -> np.ndarray:

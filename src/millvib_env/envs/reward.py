@@ -25,7 +25,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from millvib_env._checks import shown
+from millvib_env._checks import callable_or_none, shown
 from millvib_env.envs.config import RewardSettings
 
 __all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
@@ -52,10 +52,8 @@ class RewardFunction(Protocol):
 
 def user_reward(fn: Any) -> RewardFunction | None:
     """An environment's ``reward_fn``, checked: None or a callable."""
-    if fn is not None and not callable(fn):
-        raise ValueError(f"reward_fn = {shown(fn)} is invalid: None or a callable reward(terms) -> one reward per "
-                         "environment (envs.reward.RewardFunction)")
-    return fn
+    return callable_or_none("reward_fn", fn, "a callable reward(terms) -> one reward per environment "
+                                             "(envs.reward.RewardFunction)")
 
 #: what an episode that leaves its envelope (or whose integration fails) costs at least, in the
 #: benchmark's cost units (severity / 4.5 mm/s + tracking RMS / 10 um): twice the tracking cost of
