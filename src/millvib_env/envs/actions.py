@@ -66,25 +66,25 @@ class GainMap:
 
     @classmethod
     def from_config(cls, config: EnvConfig, pressure_feedback: bool | None = None) -> "GainMap":
-        acts = config["actions"]
+        acts = config.actions
         pf = config.pressure_feedback if pressure_feedback is None else pressure_feedback
         names = gain_names(pf, config.force_feedforward)
-        lo = np.array([acts[k][0] for k in names], float)
-        hi = np.array([acts[k][1] for k in names], float)
-        rel = acts.get("relative")
+        lo = np.array([acts.bounds(k)[0] for k in names], float)
+        hi = np.array([acts.bounds(k)[1] for k in names], float)
+        rel = acts.relative
         if rel:
-            base = np.asarray(rel["base"], float)
+            base = np.asarray(rel.base, float)
             if base.shape != (len(names),):
-                raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: it needs "
+                raise ValueError(f"env config actions.relative.base = {rel.base!r} is invalid: it needs "
                                  f"{len(names)} gains {list(names)} (pressure_feedback / force_feedforward set "
                                  "the entries)")
             try:
-                decades = np.broadcast_to(np.asarray(rel.get("decades", 1.0), float), base.shape).copy()
+                decades = np.broadcast_to(np.asarray(rel.decades, float), base.shape).copy()
             except ValueError:
-                raise ValueError(f"env config actions.relative.decades = {rel.get('decades')!r} is invalid: one "
+                raise ValueError(f"env config actions.relative.decades = {rel.decades!r} is invalid: one "
                                  f"number or {len(names)} of them, one per gain {list(names)}") from None
             if np.any((base <= 0) & (decades > 0)):
-                raise ValueError(f"env config actions.relative.base = {rel['base']!r} is invalid: a gain with a "
+                raise ValueError(f"env config actions.relative.base = {rel.base!r} is invalid: a gain with a "
                                  "log offset (decades > 0) needs a base > 0")
             return cls(names, lo, hi, True, base, decades)
         return cls(names, lo, hi, config.log_scaled_gains)

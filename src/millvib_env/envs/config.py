@@ -11,7 +11,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Any, Callable, Mapping, NoReturn
 
@@ -159,6 +159,43 @@ class InitialSettings:
 
 
 @dataclass(frozen=True)
+class RelativeAction:
+    """A relative gain action (`actions.relative`): log offsets of +-`decades` around the gains `base`."""
+
+    base: list           # the base gains, as the config gives them (KP, KI, KD[, KPL[, KFF]])
+    decades: Any = 1.0   # one number, or one per gain
+
+
+@dataclass(frozen=True)
+class ActionSettings:
+    """The config's `actions` section, typed (the schema requires the bounds, the two ranges and the residual's
+    gains; the values are the config's own, checked by the schema)."""
+
+    kp: list                # [low, high] of each gain the gain-schedule action sets
+    ki: list
+    kd: list
+    kpl: list
+    kff: list
+    u_range_v: float        # the valve action's full scale (V)
+    residual_range_v: float  # the residual valve action's full scale (V)
+    residual_gains: list    # the fixed controller under a residual action: KP, KI, KD[, KPL[, KFF]]
+    pressure_feedback: bool = False
+    force_feedforward: bool = False
+    scale: str = "log"      # the gain action's scale: "log" or "linear"
+    relative: RelativeAction | None = None
+
+    @classmethod
+    def from_section(cls, section: Mapping) -> ActionSettings:
+        rel = section.get("relative")
+        fields = {k: v for k, v in section.items() if k != "relative"}
+        return cls(**fields, relative=RelativeAction(**rel) if rel else None)
+
+    def bounds(self, gain: str) -> list:
+        """[low, high] of `gain` (kp, ki, kd, kpl or kff)."""
+        return getattr(self, gain)
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     """Validated environment configuration (see configs/env/startup.yaml for every key)."""
 
@@ -194,34 +231,39 @@ class EnvConfig:
     def sample_rate_hz(self) -> float:
         return float(self.raw["sample_rate_hz"])
 
-    @property
+    # the typed sections, each built once per config (an EnvConfig is never changed after load_env_config)
+    @cached_property
     def observation(self) -> ObservationSettings:
         return ObservationSettings(**self.raw["observation"])
 
-    @property
+    @cached_property
     def reward(self) -> RewardSettings:
         return RewardSettings(**self.raw["reward"])
 
-    @property
+    @cached_property
     def envelope(self) -> EnvelopeSettings:
         return EnvelopeSettings(**self.raw["envelope"])
 
-    @property
+    @cached_property
     def initial(self) -> InitialSettings:
         return InitialSettings(**self.raw["initial"])
 
+    @cached_property
+    def actions(self) -> ActionSettings:
+        return ActionSettings.from_section(self.raw["actions"])
+
     @property
     def pressure_feedback(self) -> bool:
-        return bool(self.raw["actions"].get("pressure_feedback", False))
+        return bool(self.actions.pressure_feedback)
 
     @property
     def force_feedforward(self) -> bool:
-        return bool(self.raw["actions"].get("force_feedforward", False))
+        return bool(self.actions.force_feedforward)
 
     @property
     def log_scaled_gains(self) -> bool:
         """The gain action's scale: log (the default) or linear (`actions.scale`)."""
-        return self.raw["actions"].get("scale", "log") == "log"
+        return self.actions.scale == "log"
 
 
 # --- the schema --------------------------------------------------------------------------------

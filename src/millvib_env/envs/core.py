@@ -100,10 +100,10 @@ class MillVibCore:
         self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
         self.disturbances += user_disturbances(extra_disturbances)
 
-        acts = raw["actions"]
+        acts = config.actions
         self.gain_map = GainMap.from_config(config)
-        self.u_range = float(acts["residual_range_v"] if self.residual else acts["u_range_v"])
-        self.residual_gains = PIDGains(*acts["residual_gains"])
+        self.u_range = float(acts.residual_range_v if self.residual else acts.u_range_v)
+        self.residual_gains = PIDGains(*acts.residual_gains)
         self.act_dim = self.gain_map.dim if mode == "gain" else 1
         self.action_space = spaces.Box(-1.0, 1.0, (self.act_dim,), dtype=np.float32)
         self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
