@@ -83,29 +83,36 @@ def check_profile(profile: EpisodeProfile, n: int, who: Any) -> None:
                              "the array in place)")
 
 
-def _range(spec, key):
-    lo, hi = spec[key]
+def _range(pair) -> tuple[float, float]:
+    lo, hi = pair
     return float(lo), float(hi)
 
 
-def _step_times(rng, spec, profile: EpisodeProfile) -> list[int]:
-    lo_n, hi_n = (int(v) for v in spec["count"])
-    count = int(rng.integers(lo_n, hi_n + 1))
-    t_lo, t_hi = _range(spec, "window_s")
+def _count(pair) -> tuple[int, int]:
+    lo, hi = pair
+    return int(lo), int(hi)
+
+
+def _step_times(rng, count: tuple[int, int], window_s: tuple[float, float], profile: EpisodeProfile) -> list[int]:
+    n = int(rng.integers(count[0], count[1] + 1))
+    t_lo, t_hi = window_s
     t_hi = min(t_hi, profile.n * profile.dt)
-    times = np.sort(rng.uniform(t_lo, t_hi, count)) if count and t_hi > t_lo else np.array([])
+    times = np.sort(rng.uniform(t_lo, t_hi, n)) if n and t_hi > t_lo else np.array([])
     return [min(profile.n - 1, int(t / profile.dt)) for t in times]
 
 
 @dataclass(frozen=True)
 class SetpointSteps:
-    """Gauge corrections: `count` set-point steps of +-amplitude_m at times in window_s."""
+    """Gauge corrections: `count` (a range) set-point steps of +-`amplitude_m` (a range, m) at times in
+    `window_s` (s)."""
 
-    spec: dict
+    count: tuple[int, int]
+    amplitude_m: tuple[float, float]
+    window_s: tuple[float, float]
 
     def apply(self, rng, profile: EpisodeProfile, params) -> None:
-        lo, hi = _range(self.spec, "amplitude_m")
-        for k in _step_times(rng, self.spec, profile):
+        lo, hi = self.amplitude_m
+        for k in _step_times(rng, self.count, self.window_s, profile):
             step = rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi)
             profile.xd[k:] += step
             profile.events.append(("setpoint", k * profile.dt, float(step)))
@@ -113,13 +120,16 @@ class SetpointSteps:
 
 @dataclass(frozen=True)
 class ForceSteps:
-    """Entry-thickness or hardness changes: rolling-force steps of +-fraction x FL."""
+    """Entry-thickness or hardness changes: `count` rolling-force steps of +-`fraction` x FL at times in
+    `window_s` (s)."""
 
-    spec: dict
+    count: tuple[int, int]
+    fraction: tuple[float, float]
+    window_s: tuple[float, float]
 
     def apply(self, rng, profile: EpisodeProfile, params) -> None:
-        lo, hi = _range(self.spec, "fraction")
-        for k in _step_times(rng, self.spec, profile):
+        lo, hi = self.fraction
+        for k in _step_times(rng, self.count, self.window_s, profile):
             step = rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi) * params.FL
             profile.dFL[k:] += step
             profile.events.append(("force", k * profile.dt, float(step)))
@@ -127,13 +137,15 @@ class ForceSteps:
 
 @dataclass(frozen=True)
 class Eccentricity:
-    """Roll eccentricity: a force F sin(2 pi f t + phase), amplitude and frequency drawn per episode."""
+    """Roll eccentricity: a force F sin(2 pi f t + phase), amplitude (N) and frequency (Hz) drawn per episode from
+    their ranges."""
 
-    spec: dict
+    amplitude_n: tuple[float, float]
+    frequency_hz: tuple[float, float]
 
     def apply(self, rng, profile: EpisodeProfile, params) -> None:
-        a_lo, a_hi = _range(self.spec, "amplitude_n")
-        f_lo, f_hi = _range(self.spec, "frequency_hz")
+        a_lo, a_hi = self.amplitude_n
+        f_lo, f_hi = self.frequency_hz
         profile.ecc_amp_n = float(rng.uniform(a_lo, a_hi))
         profile.ecc_omega = float(2 * np.pi * rng.uniform(f_lo, f_hi))
         profile.ecc_phase = float(rng.uniform(0, 2 * np.pi))
@@ -150,19 +162,25 @@ class ParameterChange:
     drawn from `kinds` with equal odds.
     """
 
-    spec: dict
+    start_s: tuple[float, float]
+    duration_s: tuple[float, float]
+    c1_factor: tuple[float, float]
+    ct_factor: tuple[float, float]
+    kinds: tuple[str, ...] = ("both",)  # "damping", "leakage" and/or "both"
+    c1_min: float = 0.0                 # c1 never falls below this (N s/m)
+    ct_max: float = math.inf            # Ct never rises above this (m^3/(s Pa))
 
     def apply(self, rng, profile: EpisodeProfile, params) -> None:
-        kinds = list(self.spec.get("kinds") or ["both"])
+        kinds = list(self.kinds)
         kind = kinds[int(rng.integers(len(kinds)))]
-        t0 = float(rng.uniform(*_range(self.spec, "start_s")))
-        duration = float(rng.uniform(*_range(self.spec, "duration_s")))
-        lo, hi = _range(self.spec, "c1_factor")
+        t0 = float(rng.uniform(*self.start_s))
+        duration = float(rng.uniform(*self.duration_s))
+        lo, hi = self.c1_factor
         f_c1 = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-        lo, hi = _range(self.spec, "ct_factor")
+        lo, hi = self.ct_factor
         f_ct = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-        f_c1 = max(f_c1, float(self.spec.get("c1_min", 0.0)) / params.c1) if kind != "leakage" else 1.0
-        f_ct = min(f_ct, float(self.spec.get("ct_max", math.inf)) / params.Ct) if kind != "damping" else 1.0
+        f_c1 = max(f_c1, self.c1_min / params.c1) if kind != "leakage" else 1.0
+        f_ct = min(f_ct, self.ct_max / params.Ct) if kind != "damping" else 1.0
         profile.change = PlantChange(t0, duration, min(f_c1, 1.0), max(f_ct, 1.0))
         profile.events.append(("plant_change", t0, {"kind": kind, "duration_s": duration,
                                                     "c1_factor": profile.change.c1_factor,
@@ -181,16 +199,28 @@ class SensorNoise:
         return rng.normal(0.0, 1.0, (n, 3)) * np.array([self.x_m, self.v_m_s, self.a_m_s2])
 
 
-_PROFILE_KINDS = {"setpoint_steps": SetpointSteps, "force_steps": ForceSteps, "eccentricity": Eccentricity,
-                  "plant_change": ParameterChange}
+def _steps(cls, size: str):
+    return lambda s: cls(_count(s["count"]), _range(s[size]), _range(s["window_s"]))
+
+
+def _change(s) -> ParameterChange:
+    return ParameterChange(_range(s["start_s"]), _range(s["duration_s"]), _range(s["c1_factor"]),
+                           _range(s["ct_factor"]), tuple(s.get("kinds") or ["both"]), float(s.get("c1_min", 0.0)),
+                           float(s.get("ct_max", math.inf)))
+
+
+#: each profile disturbance of the config's section, typed from its (schema-checked) entry, in the order they draw
+_PROFILE_KINDS = {"setpoint_steps": _steps(SetpointSteps, "amplitude_m"), "force_steps": _steps(ForceSteps, "fraction"),
+                  "eccentricity": lambda s: Eccentricity(_range(s["amplitude_n"]), _range(s["frequency_hz"])),
+                  "plant_change": _change}
 
 
 def build_disturbances(spec: dict) -> tuple[list, SensorNoise | None, int]:
     """From the config's `disturbances` section: (profile disturbances, sensor noise, delay steps)."""
     items = []
-    for key, cls in _PROFILE_KINDS.items():
+    for key, build in _PROFILE_KINDS.items():
         if spec.get(key):
-            items.append(cls(dict(spec[key])))
+            items.append(build(spec[key]))
     unknown = set(spec) - set(_PROFILE_KINDS) - {"sensor_noise", "delay_steps"}
     if unknown:
         raise ValueError(f"unknown disturbance(s) {sorted(unknown, key=repr)}; known: {sorted(_PROFILE_KINDS)}, "
