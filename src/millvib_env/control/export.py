@@ -96,7 +96,7 @@ def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
 
 
 def _metadata(agent, core) -> dict:
-    acts = core.cfg.raw["actions"]
+    acts = core.cfg.actions
     meta = {"millvib.agent": agent.name, "millvib.seed": str(agent.seed), "millvib.task": agent.task.name,
             "millvib.env_id": agent.env_id, "millvib.env_kwargs": json.dumps(agent.env_kwargs, sort_keys=True),
             "millvib.observation": json.dumps(list(core.obs_names)),
@@ -108,7 +108,7 @@ def _metadata(agent, core) -> dict:
                                     "amplifier's range" if core.residual else "")
     else:
         meta["millvib.action"] = f"gain schedule in [-1, 1]^{core.act_dim} (envs.actions.GainMap of the env config: " \
-            f"{json.dumps({k: acts[k] for k in ('kp', 'ki', 'kd', 'kpl', 'kff') if k in acts})})"
+            f"{json.dumps({k: acts.bounds(k) for k in ('kp', 'ki', 'kd', 'kpl', 'kff')})})"
     return meta
 
 
