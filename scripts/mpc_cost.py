@@ -10,7 +10,6 @@ import argparse
 import time
 
 from millvib_env.control.factory import load_controller
-from millvib_env.envs.config import task_config
 from millvib_env.tasks import get_task
 from millvib_env.training.evaluate import run_episodes
 
@@ -31,7 +30,7 @@ def main() -> None:
     first = t.seeds["validation"].start
     seeds = list(range(first, first + args.episodes))
     ref = cpu_of("pid-pf-robust", t.name, seeds)
-    cfg = task_config(t.name, "v1")
+    cfg = t.env_config("v1")
     samples = args.episodes * round(cfg.episode_s / cfg.control_dt_s)
     print(f"pid-pf-robust: {ref:.2f} CPU-s for {args.episodes} episodes ({samples} loop samples)")
     for name in ("mpc-oracle", "mpc-preview"):

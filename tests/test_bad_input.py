@@ -402,7 +402,7 @@ def test_a_config_file_damaged_anywhere_is_read_whole_or_refused_in_one_line(dat
     else:
         lines = lines[:i]
     path.write_text("\n".join(lines) + "\n")
-    for cached in (severity._load_severity_config, tasks._load, env_config._task_config):
+    for cached in (severity._load_severity_config, tasks._load, env_config._cached_env_config):
         cached.cache_clear()
     try:
         _loaders()[name]()
@@ -427,7 +427,7 @@ def test_what_the_damage_fuzz_found_is_refused_in_one_line(name, section, start,
     k = next(j for j in range(first, len(lines)) if lines[j].startswith(start))  # the line must still exist
     lines[k] = damaged
     path.write_text("\n".join(lines) + "\n")
-    for cached in (severity._load_severity_config, tasks._load, env_config._task_config):
+    for cached in (severity._load_severity_config, tasks._load, env_config._cached_env_config):
         cached.cache_clear()
     with pytest.raises(ValueError, match=names) as info:
         _loaders()[name]()

@@ -55,13 +55,13 @@ def test_a_named_base_is_resolved_from_the_tasks_control_config_before_the_env()
 
     env = gym.make("MillVib-GainSchedule-v0", config="rolling",  # as the zoo passes a file's env_kwargs
                    actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
-    assert list(env.unwrapped.core.gain_map.base) == named_gains("pid-pf-robust", "rolling")
+    assert list(env.unwrapped.core.gain_map.base) == named_gains("pid-pf-robust", get_task("rolling"))
     kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
                                           "residual_gains": "pid-pf-ff"}}, "rolling")
-    assert kw["actions"]["relative"]["base"] == named_gains("pid-pf-robust", "rolling")  # the card records numbers
+    assert kw["actions"]["relative"]["base"] == named_gains("pid-pf-robust", get_task("rolling"))  # numbers
     assert len(kw["actions"]["residual_gains"]) == 5
     assert resolve_named_gains({"config": "change", "actions": {"residual_gains": "pid-pf-ff"}}, version="v1")[
-        "actions"]["residual_gains"] == named_gains("pid-pf-ff", "change", "v1")  # the task its config names
+        "actions"]["residual_gains"] == named_gains("pid-pf-ff", get_task("change"), "v1")  # the task its config names
     with pytest.raises(ValueError, match="gains 'bogus' unknown"):
         resolve_named_gains({"actions": {"residual_gains": "bogus"}}, "rolling")
     for actions in ({"residual_gains": "pid-pf-ff"}, {"relative": {"base": "pid-pf-robust"}}):
@@ -91,7 +91,7 @@ def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plant
     assert REFERENCE == "pid-pf-robust"
     t = get_task(task)
     assert control_entry(t, "pid-pf-robust")["tuning_cost"] < control_entry(t, "pid-robust")["tuning_cost"]
-    assert len(named_gains("pid-pf-robust", task)) == 4 and len(named_gains("pid-pf-ff", task)) == 5
+    assert len(named_gains("pid-pf-robust", t)) == 4 and len(named_gains("pid-pf-ff", t)) == 5
 
 
 def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant():
@@ -100,7 +100,7 @@ def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant
     from millvib_env.params import PIDGains
 
     for task in ("startup", "rolling", "change"):
-        gains = PIDGains(*named_gains("pid-pf-robust", task))
+        gains = PIDGains(*named_gains("pid-pf-robust", get_task(task)))
         entry = control_entry(get_task(task), "pid-oracle")
         base = load_env_config(task).base_params
         for c1 in entry["c1_grid"]:

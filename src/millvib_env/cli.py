@@ -209,10 +209,8 @@ def _cmd_tasks(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from millvib_env.tasks import get_task
     from millvib_env.training.hyperparams import load_hyperparams
 
-    get_task(args.task)
     load_hyperparams(args.algo, args.env, args.config)  # the files, refused before torch and SB3 load (seconds)
     from millvib_env.training.train import train_from_cli
 
@@ -494,6 +492,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.print_help()
             return 0
         command = f"millvib {args.command}"
+        if getattr(args, "task", None) is not None:  # a task's name enters here, and a `Task` goes on
+            from millvib_env.tasks import get_task
+
+            args.task = get_task(args.task)
         return int(args.func(args) or 0)
     except ValueError as err:
         print(f"{command}: error: {err}", file=sys.stderr)

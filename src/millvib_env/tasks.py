@@ -1,6 +1,6 @@
 """The benchmark's tasks (startup, rolling, change) and their disjoint seed ranges (configs/tasks.yaml).
 
-A task is an environment config plus four seed ranges: training, tuning, validation and held-out.
+A task is an environment config (`Task.env_config`) plus four seed ranges: training, tuning, validation and held-out.
 Everything that draws plants for a purpose (training, PID tuning, model cards, the benchmark)
 takes its seeds from here, so no held-out plant is ever trained or tuned on.
 """
@@ -13,6 +13,8 @@ from functools import lru_cache
 from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import EnvConfig, cached_env_config
 
 __all__ = ["Task", "get_task", "list_tasks", "all_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
 
@@ -30,6 +32,15 @@ class Task:
     config: str
     description: str
     seeds: dict  # purpose -> range (inclusive bounds in the file, a Python range here)
+
+    def env_config(self, version: str = "v0") -> EnvConfig:
+        """The task's environment config in environment version `version` (v0: the paper's analog loop; v1: the
+        loop as commissioned), read and validated once per process and shared: it is frozen."""
+        return cached_env_config(self.config, version)
+
+    def gain_map(self, version: str = "v0") -> GainMap:
+        """The gain map of the task's gain-schedule action in environment version `version`."""
+        return GainMap.from_config(self.env_config(version))
 
     def train_env_seed(self, seed: int) -> int:
         """First environment seed of training seed `seed` (environment i uses this + i)."""

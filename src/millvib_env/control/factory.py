@@ -13,9 +13,9 @@ from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_fol
 from millvib_env.control.base import Controller
 from millvib_env.control.registry import REGISTRY, baseline_names
 from millvib_env.control.tuned import control_config_path, control_entry, load_control_config, oracle_table
-from millvib_env.envs.actions import GainMap, task_gain_map
+from millvib_env.envs.actions import GainMap
 from millvib_env.envs.batch import env_id_for
-from millvib_env.envs.config import ENV_VERSIONS, EnvConfig, task_config
+from millvib_env.envs.config import ENV_VERSIONS, EnvConfig
 from millvib_env.tasks import Task, get_task
 
 __all__ = ["load_controller", "load_control_config", "control_entry", "control_config_path", "oracle_table"]
@@ -48,9 +48,9 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
             raise ValueError(f"agent {name!r} was trained on task {agent.task.name!r}, not {t.name!r}: "
                              f"run it with task {agent.task.name!r}")
         return agent
-    gain_map = GainMap.from_config(config) if config is not None else task_gain_map(t)
+    gain_map = GainMap.from_config(config) if config is not None else t.gain_map()
     entry = REGISTRY[name]
-    ctrl = entry.build(name, t, version, config or task_config(t, version), gain_map)
+    ctrl = entry.build(name, t, version, config or t.env_config(version), gain_map)
     ctrl.task = t
     ctrl.env_id = env_id_for(entry.env_mode, version)
     return ctrl

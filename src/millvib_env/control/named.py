@@ -23,13 +23,12 @@ __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "r
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
-def named_gains(name: str, task: str | Task = "startup", version: str = "v0") -> list[float]:
-    """The gains of the fixed-gain baseline `name` of `task` (a name or a `Task`) in environment version `version`:
+def named_gains(name: str, task: Task, version: str = "v0") -> list[float]:
+    """The gains of the fixed-gain baseline `name` of `task` in environment version `version`:
     its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
     (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
     from millvib_env.params import PAPER_GAINS
 
-    task = get_task(task)
     if name not in NAMED_GAINS:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
     if name == "pid-paper":

@@ -25,9 +25,9 @@ def control_config_path(task: Task, version: str = "v0") -> Path:
     return (folder if version == "v0" else folder / version) / f"{task.name}.yaml"
 
 
-def load_control_config(task: str | Task = "startup", version: str = "v0") -> dict[str, Any]:
+def load_control_config(task: Task, version: str = "v0") -> dict[str, Any]:
     """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
-    return _read(get_task(task), version)
+    return _read(task, version)
 
 
 def _read(task: Task, version: str) -> dict[str, Any]:

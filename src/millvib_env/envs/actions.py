@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from millvib_env.envs.config import EnvConfig, task_config
+from millvib_env.envs.config import EnvConfig
 
 __all__ = ["GainMap", "GAIN_NAMES", "GAIN_UNITS", "WIDE_BOUNDS", "wide_actions", "fixed_actions"]
 
@@ -152,9 +152,4 @@ class GainMap:
             return rel[0].copy()
         rest = np.maximum(self.lo[3:], 0.0)
         return np.concatenate([np.asarray(paper, float)[:3], rest])
-
-
-def task_gain_map(task) -> GainMap:
-    """The gain map of a task's gain-schedule action (`envs.config.task_config`)."""
-    return GainMap.from_config(task_config(task))
 

@@ -623,17 +623,15 @@ def _base_params(plant: Any) -> MillParams:
     return base
 
 
-def task_config(task: Any, version: str = "v0") -> EnvConfig:
-    """The environment config of a task (a name or a `tasks.Task`) in environment version `version`, read
-    and validated once per process and configs folder: every caller that needs a task's plant, periods or
-    gain bounds shares it (an EnvConfig is frozen; its sections are read, never written)."""
-    from millvib_env.tasks import get_task
-
-    t = get_task(task)
-    return _task_config(str(config_dir()), t.config, version)
+def cached_env_config(name: str, version: str = "v0") -> EnvConfig:
+    """The env config `name` in environment version `version` as its file has it (no overrides), read and
+    validated once per process and configs folder: every caller that needs a task's plant, periods or gain
+    bounds shares it (an EnvConfig is frozen; its sections are read, never written). A task's own:
+    `tasks.Task.env_config`."""
+    return _cached_env_config(str(config_dir()), name, version)
 
 
 @lru_cache(maxsize=None)
-def _task_config(root: str, name: str, version: str) -> EnvConfig:
+def _cached_env_config(root: str, name: str, version: str) -> EnvConfig:
     return load_env_config(name, version=version)
 

@@ -34,7 +34,7 @@ from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
-from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig, task_config
+from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.tasks import Task, get_task
 from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
@@ -253,7 +253,7 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     units, loaded = _load_units(names, t, all_seeds, env_version, progress)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
-    cfg = task_config(t, env_version)
+    cfg = t.env_config(env_version)
     result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
                     "env_id": env_id, "env_version": env_version, "loop": loop_description(cfg),
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
@@ -572,12 +572,13 @@ def _write_files(result: dict, out: Path) -> list[Path]:
     if result.get("reference", "pid-robust") in result["records"] and len(result["records"]) > 1:
         files.append(_plot_paired_plane(result, out / "paired_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
-    if result.get("task", "startup") == "startup":
+    task = get_task(result.get("task", "startup"))  # a result names its task (it may have been read from JSON)
+    if task.name == "startup":
         files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
-                                  result["plants"][0], version=result.get("env_version", "v0")))
+                                  result["plants"][0], task=task, version=result.get("env_version", "v0")))
     else:
         files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["plants"][0],
-                                  scenario=None, task=result["task"], version=result.get("env_version", "v0")))
+                                  scenario=None, task=task, version=result.get("env_version", "v0")))
     return files
 
 
@@ -585,15 +586,15 @@ def _write_files(result: dict, out: Path) -> list[Path]:
 TRACE_SCENARIO = "low-damping-high-leakage"
 
 
-def _plot_traces(names: Sequence[str], path: Path, seed: int, scenario: str | None = TRACE_SCENARIO,
-                 task: str = "startup", version: str = "v0") -> Path:
+def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, scenario: str | None = TRACE_SCENARIO,
+                 version: str = "v0") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
-    u_max = task_config(task, version).base_params.u_max
+    u_max = task.env_config(version).base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
         tr = trace_episode(load_controller(name, task, version=version), scenario=scenario, seed=seed, task=task)

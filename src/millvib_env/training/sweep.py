@@ -20,7 +20,7 @@ import numpy as np
 
 from millvib_env._checks import integer, strings
 from millvib_env.params import studied_range
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, get_task
 
 __all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
 
@@ -32,10 +32,8 @@ SEED_OFFSET = 40_000
 CHUNK = 64
 
 
-def _randomize(task: str, params: Sequence[str], version: str = "v0") -> dict:
-    from millvib_env.envs.config import task_config
-
-    cfg = task_config(task, version)
+def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
+    cfg = task.env_config(version)
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:
         if name not in RANGES:
@@ -62,7 +60,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     from millvib_env.envs.batch import env_id_for
 
     env_id = env_id_for("gain", env_version)
-    randomize = _randomize(t.name, params, env_version)
+    randomize = _randomize(t, params, env_version)
     first = t.seeds["heldout"].start + SEED_OFFSET if seed is None else seed
     seeds = list(range(first, first + plants))
     t.check_heldout(seeds)

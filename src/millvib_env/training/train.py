@@ -425,7 +425,7 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
     task = get_task(kwargs.get("task", "startup"))
     for s in seeds:
         task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
-    job_args = [{**kwargs, "seed": s, "progress": False,
+    job_args = [{**kwargs, "task": task, "seed": s, "progress": False,
                  "save_dir": None if save_dir is None else str(Path(save_dir) / f"seed-{s}")} for s in seeds]
     return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed)
 

@@ -34,6 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from millvib_env.envs.config import cached_env_config
 from millvib_env.tasks import Task, get_task
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
@@ -275,18 +276,14 @@ def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool
 
 
 def _area(t: Task) -> float:
-    from millvib_env.envs.config import task_config
-
-    return float(task_config(t).base_params.Ap)
+    return float(t.env_config().base_params.Ap)
 
 
 def _oracle_grid(t: Task, n: int, version: str = "v0"):
     """The oracle tables' grid: n x n over the (log c1, log Ct) ranges of the startup task's draw in the
     version, whatever the task: a table is a property of plants, and the `change` task's plants move
     over the whole range."""
-    from millvib_env.envs.config import task_config
-
-    dists = {d.name: d for d in task_config("startup", version).randomize}
+    dists = {d.name: d for d in cached_env_config("startup", version).randomize}
     c1_grid = np.geomspace(dists["c1"].low, dists["c1"].high, n)
     ct_grid = np.geomspace(dists["Ct"].low, dists["Ct"].high, n)
     return c1_grid, ct_grid, [(i, j) for i in range(n) for j in range(n)]
@@ -340,7 +337,7 @@ def tune_from_cli(args) -> int:
     from millvib_env._paths import check_output, write_text_atomic
     from millvib_env._yaml import load_yaml
 
-    t = get_task(args.task)
+    t = args.task  # resolved by the CLI
     if bool(args.out) == bool(args.write_config):
         raise ValueError("say where the result goes: --out FILE (a copy of the task's control config with the "
                          "tuned entries) or --write-config (configs/control/<task>.yaml itself), not both")

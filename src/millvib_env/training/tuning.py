@@ -16,9 +16,9 @@ import numpy as np
 from scipy import optimize
 
 from millvib_env.control.base import Controller
-from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, task_gain_map, wide_actions
+from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.batch import env_id_for
-from millvib_env.envs.config import load_env_config, task_config
+from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import Task
 from millvib_env.training.evaluate import run_episodes
 
@@ -164,7 +164,7 @@ class TuneResult:
 def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=GRID,
          refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
-    gain_map = task_gain_map(task)
+    gain_map = task.gain_map()
     lo, hi = gain_map.log_lo, gain_map.log_hi
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
@@ -268,7 +268,7 @@ def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = A
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
     from millvib_env.control.factory import oracle_table
 
-    cfg = task_config(task, version)
+    cfg = task.env_config(version)
     table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
     costs: dict[float, float] = {}
     for tau in taus:
@@ -308,7 +308,7 @@ def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: s
     study name share the study. Returns the study's best gains so far."""
     import optuna
 
-    gain_map = task_gain_map(task)
+    gain_map = task.gain_map()
     lo, hi = gain_map.log_lo, gain_map.log_hi
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(study_name=study_name, storage=optuna_storage(storage), direction="minimize",
