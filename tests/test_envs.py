@@ -416,10 +416,16 @@ def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs()
 def test_every_task_config_has_its_own_id_that_runs_the_same_episodes():
     """MillVib-<Name>-<Config>-<version> (for clients that take an id string only) is the generic id with that
     config: the same first observations from gym.make, the SB3 VecEnv and Gymnasium's vector entry point; it
-    refuses another config; the registry and envs.batch.ID_CONFIGS list the same ids."""
+    refuses another config; Gymnasium's registry holds exactly the ids of envs.specs.ENV_SPECS, as they say."""
     from millvib_env import make_vec_env
     from millvib_env.envs.batch import ID_CONFIGS
+    from millvib_env.envs.specs import ENV_SPECS
 
+    assert set(ENV_SPECS) == {i for i in gym.registry if i.startswith("MillVib-")}
+    for env_id, spec in ENV_SPECS.items():
+        reg = gym.registry[env_id]
+        assert (reg.entry_point, reg.vector_entry_point, reg.kwargs) == \
+            (spec.entry_point, spec.vector_entry_point, spec.kwargs)
     assert set(ID_CONFIGS) == {i for i in gym.registry if i.startswith("MillVib-") and i.count("-") == 3}
     for env_id, config in ID_CONFIGS.items():
         if not env_id.endswith("-v1"):

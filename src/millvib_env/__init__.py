@@ -17,23 +17,19 @@ __all__ = ["MillParams", "PIDGains", "PAPER_GAINS", "load_preset", "__version__"
 
 
 def _register_envs() -> None:
-    """Register the ids: two environments in two versions (v0: the paper's analog loop; v1: the loop as
-    commissioned). The environments truncate their episodes themselves (after the config's episode_s),
-    so no TimeLimit is registered: one would cut a 1 s `rolling` episode at the 0.5 s `startup` length."""
+    """Register the ids of `envs.specs.ENV_SPECS`: two environments in two versions (v0: the paper's analog loop;
+    v1: the loop as commissioned), each as a generic id and as one id per task config (MillVib-Valve-Rolling-v1)
+    for clients that take an id string only; `gym.make_vec(..., vectorization_mode="vector_entry_point")` gets the
+    batched engine. The environments truncate their episodes themselves (after the config's episode_s), so no
+    TimeLimit is registered: one would cut a 1 s `rolling` episode at the 0.5 s `startup` length."""
     import gymnasium
 
-    for name in ("GainSchedule", "Valve"):
-        for version in ("v0", "v1"):
-            # the generic id, then one per task config (MillVib-Valve-Rolling-v1: config="rolling") for clients
-            # that take an id string only; the same list as envs.batch.ID_CONFIGS (tested)
-            for config in (None, "startup", "rolling", "change", "varied"):
-                env_id = f"MillVib-{name}-{version}" if config is None else \
-                    f"MillVib-{name}-{config.capitalize()}-{version}"
-                kwargs = {"env_version": version} if config is None else {"env_version": version, "config": config}
-                if env_id not in gymnasium.registry:  # gym.make_vec(..., vectorization_mode="vector_entry_point"):
-                    gymnasium.register(id=env_id, entry_point=f"millvib_env._entry:{name}Env",  # the batched
-                                       vector_entry_point=f"millvib_env._entry:{name}VectorEnv",  # engine
-                                       kwargs=kwargs)  # (_entry: named gain sets resolved, then envs.base / vector)
+    from millvib_env.envs.specs import ENV_SPECS
+
+    for env_id, spec in ENV_SPECS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=spec.entry_point, vector_entry_point=spec.vector_entry_point,
+                               kwargs=spec.kwargs)
 
 
 _register_envs()

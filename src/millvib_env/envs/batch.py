@@ -13,21 +13,14 @@ import numpy as np
 
 from millvib_env.envs.config import ENV_VERSIONS, load_env_config
 from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.specs import ENV_SPECS
 
 __all__ = ["EpisodeBatch", "ENV_IDS", "ID_CONFIGS", "env_mode", "env_version", "env_id_for", "id_config"]
 
-#: the environments' names and modes; their ids are ``MillVib-<name>-<version>`` (`envs.config.ENV_VERSIONS`)
-MODES = {"GainSchedule": "gain", "Valve": "valve"}
-#: registered id -> (the engine's mode, the environment's version)
-ENV_IDS = {f"MillVib-{name}-{version}": (mode, version) for name, mode in MODES.items() for version in ENV_VERSIONS}
-#: the env configs that have an id of their own, ``MillVib-<name>-<Config>-<version>`` (e.g. MillVib-Valve-Rolling-v1),
-#: for clients that take an id string only: the same environment with that config (the tasks' configs)
-TASK_CONFIGS = ("startup", "rolling", "change", "varied")
-#: per-config id -> its config
-ID_CONFIGS = {f"MillVib-{name}-{config.capitalize()}-{version}": config
-              for name in MODES for config in TASK_CONFIGS for version in ENV_VERSIONS}
-ENV_IDS.update({env_id: ENV_IDS[env_id.replace(f"-{config.capitalize()}-", "-")]
-                for env_id, config in ID_CONFIGS.items()})
+#: registered id -> (the engine's mode, the environment's version): a view of `envs.specs.ENV_SPECS`
+ENV_IDS = {env_id: (spec.mode, spec.version) for env_id, spec in ENV_SPECS.items()}
+#: per-config id (e.g. MillVib-Valve-Rolling-v1) -> its config: the same environment with that config
+ID_CONFIGS = {env_id: spec.config for env_id, spec in ENV_SPECS.items() if spec.config is not None}
 
 
 def _entry(env_id: str) -> tuple[str, str]:
@@ -39,12 +32,13 @@ def _entry(env_id: str) -> tuple[str, str]:
 def id_config(env_id: str, config: str | dict | None) -> str | dict:
     """The config an environment of `env_id` runs: `config`, or the id's own (a per-config id; "startup" for the
     two generic ids). A per-config id given another config is refused."""
-    own = ID_CONFIGS.get(env_id)
+    spec = ENV_SPECS.get(env_id)
+    own = None if spec is None else spec.config
     if config is None:
         return own or "startup"
-    if own is not None and config != own:
+    if spec is not None and own is not None and config != own:
         raise ValueError(f"config = {config!r} contradicts env_id {env_id!r}, whose config is {own!r}: use "
-                         f"{env_id.replace(f'-{own.capitalize()}-', '-')!r} with config={config!r}")
+                         f"{spec.generic_id!r} with config={config!r}")
     return config
 
 

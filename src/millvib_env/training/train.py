@@ -107,8 +107,10 @@ def _agent_env_kwargs(raw, task) -> dict:
 
 def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
     """True where the zero action is a controller (a relative gain action's base, a residual's PID)."""
+    from millvib_env.envs.batch import env_mode
+
     acts = env_kwargs.get("actions") or {}
-    return bool(env_kwargs.get("residual")) if "Valve" in env_id else bool(acts.get("relative"))
+    return bool(env_kwargs.get("residual")) if env_mode(env_id) == "valve" else bool(acts.get("relative"))
 
 
 def start_at_zero_action(model) -> None:
@@ -222,12 +224,13 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
 
 
 def _check_id_runs_task(env_id: str, task) -> None:
-    """A per-task env id (`envs.batch.ID_CONFIGS`) trains only its own task."""
-    from millvib_env.envs.batch import ID_CONFIGS
+    """A per-task env id (`envs.specs.ENV_SPECS`: one with a config of its own) trains only its own task."""
+    from millvib_env.envs.specs import ENV_SPECS
 
-    if ID_CONFIGS.get(env_id, task.config) != task.config:
-        raise ValueError(f"--env {env_id} runs config {ID_CONFIGS[env_id]!r}, not task {task.name!r}'s "
-                         f"({task.config!r}): pass --task {ID_CONFIGS[env_id]} or a generic id")
+    spec = ENV_SPECS.get(env_id)
+    if spec is not None and spec.config is not None and spec.config != task.config:
+        raise ValueError(f"--env {env_id} runs config {spec.config!r}, not task {task.name!r}'s "
+                         f"({task.config!r}): pass --task {spec.config} or a generic id")
 
 
 def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs: dict | None, env_id: str,
