@@ -555,3 +555,26 @@ def test_a_users_envelope_ends_an_episode_as_the_configs_does_and_is_checked():
         assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="envelope_fn = 'no'"):
         gym.make("MillVib-GainSchedule-v1", envelope_fn="no")
+
+
+def test_an_env_config_is_immutable_and_still_pickles_and_copies():
+    """One EnvConfig is shared by every caller that loads it (`Task.env_config`): no section or list of it can be
+    changed in place; it still pickles (jobs in other processes), and a deep copy is a plain dict to change."""
+    import copy
+    import pickle
+
+    from millvib_env.tasks import get_task
+
+    cfg = get_task("rolling").env_config("v1")
+    for change in (lambda: cfg.raw.__setitem__("episode_s", 2.0), lambda: cfg.raw["reward"].update(w_effort=1.0),
+                   lambda: cfg.raw["observation"].pop("force"), lambda: cfg.raw["disturbances"].clear()):
+        with pytest.raises(TypeError, match="frozen"):
+            change()
+    assert get_task("rolling").env_config("v1").raw == cfg.raw
+    mine = copy.deepcopy(cfg.raw)
+    mine["reward"]["w_effort"] = 1.0
+    assert type(mine) is dict and mine != cfg.raw
+    back = pickle.loads(pickle.dumps(cfg))
+    assert back.raw == cfg.raw and back.observation == cfg.observation and back.base_params == cfg.base_params
+    with pytest.raises(TypeError, match="frozen"):
+        back.raw["reward"]["w_effort"] = 1.0

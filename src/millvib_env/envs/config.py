@@ -195,14 +195,67 @@ class ActionSettings:
         return getattr(self, gain)
 
 
+def _refuse(self, *args, **kwargs) -> NoReturn:
+    raise TypeError("an EnvConfig is frozen (one config is shared by every caller that loads it): change a copy, "
+                    "copy.deepcopy(config.raw), or load the config with overrides (load_env_config(name, **overrides))")
+
+
+class FrozenDict(dict):
+    """A config section that refuses to be changed. It is still a dict for every reader (``isinstance``, ``==``,
+    JSON, pickle); a deep copy is a plain dict, yours to change."""
+
+    __slots__ = ()
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __reduce__(self):
+        return FrozenDict, (dict(self),)
+
+    def __copy__(self) -> dict:
+        return dict(self)
+
+    def __deepcopy__(self, memo: dict) -> dict:
+        return {k: copy.deepcopy(v, memo) for k, v in self.items()}
+
+
+class FrozenList(list):
+    """A config list that refuses to be changed (see `FrozenDict`); a deep copy is a plain list."""
+
+    __slots__ = ()
+    __setitem__ = __delitem__ = __iadd__ = __imul__ = append = extend = insert = pop = remove = clear = sort = \
+        reverse = _refuse
+
+    def __reduce__(self):
+        return FrozenList, (list(self),)
+
+    def __copy__(self) -> list:
+        return list(self)
+
+    def __deepcopy__(self, memo: dict) -> list:
+        return [copy.deepcopy(v, memo) for v in self]
+
+
+def frozen(value: Any) -> Any:
+    """`value` with every dict and list inside it, itself included, made a `FrozenDict` or `FrozenList`."""
+    if isinstance(value, dict):
+        return FrozenDict({k: frozen(v) for k, v in value.items()})
+    if isinstance(value, list):
+        return FrozenList(frozen(v) for v in value)
+    return value
+
+
 @dataclass(frozen=True)
 class EnvConfig:
-    """Validated environment configuration (see configs/env/startup.yaml for every key)."""
+    """Validated environment configuration (see configs/env/startup.yaml for every key). Immutable: `raw` and every
+    section and list in it refuse to be changed (`FrozenDict`), since one config is shared by every caller that
+    loads it (`Task.env_config`)."""
 
     raw: dict
     base_params: MillParams
     randomize: tuple[Distribution, ...]
     version: str = "v0"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "raw", frozen(self.raw))
 
     @property
     def loop(self):
