@@ -90,3 +90,35 @@ def test_every_path_and_module_named_in_the_docs_and_configs_exists():
             if not any(ROOT.glob(f"{top}/**/{name}") for top in ("src", "scripts", "tests")):
                 missing.append(f"{f.relative_to(ROOT)}: {name}")
     assert not missing, missing
+
+
+#: the package's modules that a function may import inside itself: laziness is the point (torch and SB3,
+#: scipy.signal, matplotlib) (docs/architecture.md, "Imports at the top")
+LAZY_MODULES = {"millvib_env.envs.vec_env", "millvib_env.analysis.dynamics", "millvib_env.analysis.paper",
+                "millvib_env.analysis.solver_study", "millvib_env.control.adaptive", "millvib_env.bench",
+                "millvib_env.envs.rendering"}
+#: the files whose function-local imports are all deliberate (the CLI, the launcher, the package's __init__)
+LAZY_FILES = {"src/millvib_env/cli.py", "src/millvib_cli/__init__.py", "src/millvib_env/__init__.py"}
+
+
+def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_point():
+    """A function-local import of one of the package's modules names a lazy module (`LAZY_MODULES`), is for type
+    checkers only, or stands in a file whose commands import what they run (`LAZY_FILES`)."""
+    import ast
+
+    found = []
+    for path in sorted((ROOT / "src").rglob("*.py")):
+        rel = path.relative_to(ROOT).as_posix()
+        if rel in LAZY_FILES:
+            continue
+        tree = ast.parse(path.read_text())
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                mods = [node.module or ""] if isinstance(node, ast.ImportFrom) else \
+                    [a.name for a in node.names] if isinstance(node, ast.Import) else []
+                found += [f"{rel}:{node.lineno} {m}" for m in mods
+                          if m.split(".")[0] in ("millvib_env", "millvib_cli") and m not in LAZY_MODULES
+                          and m != "millvib_env"]
+    assert not found, found

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from millvib_env.control.named import resolve_named_gains
 from millvib_env.envs import base, vector
 
 __all__ = ["GainScheduleEnv", "ValveEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]
 
 
 def _resolved(kwargs: dict[str, Any]) -> dict[str, Any]:
-    from millvib_env.control.named import resolve_named_gains
 
     return resolve_named_gains(kwargs)
 

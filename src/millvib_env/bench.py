@@ -28,6 +28,7 @@ from millvib_env._paths import write_text_atomic
 from millvib_env.analysis.paper import PAPER_STUDIES
 from millvib_env.params import MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import simulate, simulate_batch
+from millvib_env.threads import set_num_threads
 
 __all__ = ["bench_plant", "bench_envs", "random_plants", "format_plant_bench", "format_env_bench"]
 
@@ -162,7 +163,6 @@ def _bench_env(env_id: str, kwargs: dict, n_envs: int, native_steps: int, dummy_
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from millvib_env.envs.vec_env import MillVibVecEnv
-    from millvib_env.threads import set_num_threads
 
     native = MillVibVecEnv(env_id, n_envs, seed=seed, **kwargs)
     rng = np.random.default_rng(seed)

@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from millvib_env._paths import save_figure, write_text_atomic
+from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
+from millvib_env.analysis.linear import Friction, critical_kp, stability_map
 from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import SimResult, simulate_batch
@@ -152,7 +153,6 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
         for case in study.cases:
             ax.scatter(case.gains.kp, case.params.c1, marker="x", color="k")
     ax.scatter([], [], marker="x", color="k", label="paper's cases")
-    from millvib_env.analysis.linear import Friction, critical_kp
 
     c1_fine = np.geomspace(c1s[0], c1s[-1], 40)
     frictions: tuple[tuple[Friction, str], ...] = (("stick", "-"), ("sliding", "--"))
@@ -171,7 +171,6 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool) -> tuple[
     """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
     import matplotlib.pyplot as plt
 
-    from millvib_env.analysis.linear import stability_map
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     cts = np.geomspace(*studied_range("Ct"), n_ct)
@@ -244,7 +243,6 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
     tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
     existing summary.json are kept).
     """
-    from millvib_env._paths import atomic_folder
 
     final = Path(out_dir)
     with atomic_folder(final, keep_existing=solver_study_only, command="reproduce") as out:
@@ -273,8 +271,7 @@ def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, so
         summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
                    "cases": [r.row() for r in results]}
     if solver_study or solver_study_only:
-        from millvib_env.analysis.solver_study import (format_solver_table, plot_solver_study, run_solver_study,
-                                                       verdicts)
+        from millvib_env.analysis.solver_study import format_solver_table, plot_solver_study, run_solver_study, verdicts
 
         rows, solver_runs = run_solver_study(t_end, progress=progress)
         files.append(_write_csv(out / "solver_study.csv", [r.row() for r in rows]))

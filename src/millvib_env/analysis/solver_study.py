@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env._paths import save_figure
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.studies import PAPER_STUDIES
 from millvib_env.plant.integrate import SimResult, simulate
@@ -160,7 +161,6 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from millvib_env._paths import save_figure
 
     cases = list(dict.fromkeys(r.case for r in rows))
     default, converged = rows[0].solver, rows[-1].solver

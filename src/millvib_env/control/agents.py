@@ -15,8 +15,13 @@ import numpy as np
 from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
+from millvib_env.control.manifest import verify_agent
+from millvib_env.control.named import resolve_named_gains
+from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 from millvib_env.control.registry import baseline_names
+from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task
+from millvib_env.threads import one_xla_thread
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
            "list_agents", "agent_folder", "agent_seeds"]
@@ -37,7 +42,6 @@ def algo_class(algo: str, backend: str = "sb3"):
     if algo not in BACKENDS[backend]:
         raise ValueError(f"algo = {algo!r} is invalid for backend {backend!r}: one of {BACKENDS[backend]}")
     if backend == "sbx":
-        from millvib_env.threads import one_xla_thread
 
         one_xla_thread()  # before JAX starts (training or loading): its thread pool would take every core
         try:
@@ -130,7 +134,6 @@ def checked_card(folder: str | Path) -> dict:
 def check_agent(name: str) -> None:
     """Every seed folder's card and observation statistics of agent `name`, checked as data before torch and
     the learner libraries load (seconds), so a damaged file is refused at once (docs/guarantees.md)."""
-    from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 
     for folder in agent_seed_folders(agent_folder(name)).values():
         card = checked_card(folder)
@@ -148,7 +151,6 @@ class AgentPolicy(Controller):
     task: Task
 
     def __init__(self, folder: str | Path):
-        from millvib_env.control.manifest import verify_agent
 
         folder = Path(folder)
         card_path = folder / "card.json"
@@ -158,8 +160,6 @@ class AgentPolicy(Controller):
         self.seed = self.card.get("seed", 0)
         self.env_id = self.card["env_id"]
         self.task = card_task(self.card)
-        from millvib_env.control.named import resolve_named_gains
-        from millvib_env.envs.batch import env_version
 
         # a card may name the gain set its policy builds on (``residual_gains: pid-pf-robust``): numbers from here on
         self.env_kwargs = resolve_named_gains(self.card.get("env_kwargs", {}), task=self.task,
@@ -182,7 +182,6 @@ class AgentPolicy(Controller):
             raise ValueError(f"{card_path}: normalize = {normalize!r} is invalid: 'None' or the VecNormalize "
                              "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
         if normalize.strip() not in ("None", "False", "", "{}"):
-            from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 
             self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
 

@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from millvib_env.envs.actions import GainMap
+from millvib_env.envs.config import _merge
 from millvib_env.tasks import Task
 
 __all__ = ["Controller", "PerEnvGains", "GainTable", "ControllerLoop"]
@@ -36,7 +37,6 @@ class Controller:
     def env_kwargs_for(self, task: Task | None = None, env_kwargs: dict | None = None) -> dict:
         """The environment keyword arguments this controller runs with on `task`: the task's config,
         then the controller's own settings (its action, observation, training reward), then `env_kwargs`."""
-        from millvib_env.envs.config import _merge
 
         kwargs = {"config": task.config} if task is not None else {}
         return _merge(_merge(kwargs, self.env_kwargs), env_kwargs or {})

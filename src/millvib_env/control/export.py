@@ -24,6 +24,14 @@ from typing import Any
 
 import numpy as np
 
+from millvib_env._checks import integer
+from millvib_env._paths import atomic_path
+from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
+from millvib_env.control.factory import load_controller
+from millvib_env.control.registry import baseline_names
+from millvib_env.envs.batch import EpisodeBatch
+from millvib_env.training.evaluate import env_kwargs_for
+
 __all__ = ["export_agent", "ONNX_OPSET", "EXPORT_TOLERANCE"]
 
 #: the ONNX operator set the graph is written in (onnxruntime 1.17+ runs it)
@@ -79,8 +87,6 @@ def _deployed(agent):
 
 def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
     """The observations of the agent's own first `steps` steps on its task's first validation plant."""
-    from millvib_env.envs.batch import EpisodeBatch
-    from millvib_env.training.evaluate import env_kwargs_for
 
     t = agent.task
     venv = EpisodeBatch(agent.env_id, 1, **env_kwargs_for(agent, t, None))
@@ -119,9 +125,6 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     return a summary (the file, its inputs, the largest difference, the time per call at batch 1)."""
     import io
 
-    from millvib_env._checks import integer
-    from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
-    from millvib_env.control.registry import baseline_names
 
     check_steps = integer("check_steps", check_steps, lo=1, hi=100_000)
     latency_calls = integer("latency_calls", latency_calls, lo=0, hi=1_000_000)
@@ -129,8 +132,6 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
         check_agent(name)  # its files, before torch and onnx load
     import torch
 
-    from millvib_env._paths import atomic_path
-    from millvib_env.control.factory import load_controller
 
     onnx, ort = _modules()
     agent = load_controller(name, seed=seed, version="v1")

@@ -41,8 +41,12 @@ import numpy as np
 from scipy import linalg, sparse
 
 from millvib_env._checks import instance, real
+from millvib_env.analysis.linear import linearize
 from millvib_env.control.base import Controller
+from millvib_env.envs.batch import env_id_for
+from millvib_env.loop.kernel import K_UAPP, K_UPEND
 from millvib_env.params import MillParams
+from millvib_env.plant.model import IUI, IX, P_PA, P_PS, STATE_NAMES, supply_pressure
 from millvib_env.threads import one_blas_thread
 
 if TYPE_CHECKING:
@@ -126,8 +130,6 @@ def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
 
 def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float = 0.0) -> MPCModel:
     """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`."""
-    from millvib_env.analysis.linear import linearize
-    from millvib_env.plant.model import IUI, STATE_NAMES
 
     instance("params", params, MillParams, "a MillParams")
     instance("settings", settings, MPCSettings, "an MPCSettings")
@@ -197,7 +199,6 @@ class MPCPolicy(Controller):
     reads_plant = True
 
     def __init__(self, name: str, settings: MPCSettings, version: str = "v1"):
-        from millvib_env.envs.batch import env_id_for
 
         if version == "v0":
             raise ValueError(f"{name} runs on the loop as commissioned (environment version v1): the v0 analog "
@@ -272,7 +273,6 @@ class MPCPolicy(Controller):
 
     def _exogenous(self, i: int, m: MPCModel, N: int) -> np.ndarray:
         """e_j for the steps from t_k (j = 0: the step already committed) to t_(k+N): (N + 1, 3)."""
-        from millvib_env.plant.model import P_PA, P_PS, supply_pressure
 
         core = self._core
         assert core.loop is not None  # attach checks it
@@ -299,8 +299,6 @@ class MPCPolicy(Controller):
     def teacher_command(self, i: int) -> float:
         """The command (V) the oracle sends (as a controller) or would send (as a teacher) from environment
         i's state now; its internal state moves on: call it once per sample."""
-        from millvib_env.loop.kernel import K_UAPP, K_UPEND
-        from millvib_env.plant.model import IX
 
         core = self._core
         assert core.loop is not None  # attach checks it

@@ -15,6 +15,7 @@ from typing import Any, Mapping
 from millvib_env.control.registry import REGISTRY
 from millvib_env.control.tuned import control_entry, entry_gains
 from millvib_env.envs.config import CONFIG_ALIASES
+from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import Task, all_tasks, get_task
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains"]
@@ -27,7 +28,6 @@ def named_gains(name: str, task: Task, version: str = "v0") -> list[float]:
     """The gains of the fixed-gain baseline `name` of `task` in environment version `version`:
     its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
     (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
-    from millvib_env.params import PAPER_GAINS
 
     if name not in NAMED_GAINS:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from millvib_env.control.base import Controller, PerEnvGains, GainTable
-from millvib_env.envs.actions import GainMap
+from millvib_env.control.base import Controller, GainTable, PerEnvGains
+from millvib_env.control.lqr import lqr_gains
+from millvib_env.envs.actions import GainMap, fixed_actions, wide_actions
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import Task
 
@@ -39,7 +40,6 @@ class FixedGainPolicy(Controller):
     config runs as 1e12, or is refused if it is negative or not finite)."""
 
     def __init__(self, name: str, gains, gain_map: GainMap | None = None, description: str = ""):
-        from millvib_env.envs.actions import fixed_actions
 
         self.name, self.description = name, description
         self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)
@@ -66,7 +66,6 @@ class OraclePolicy(PerEnvGains):
         """`config`: the task's env config (`Task.config`), whose action a wide table widens."""
         self.table, self.gain_map, self.name = table, gain_map, name
         if table.log_gains.shape[-1] > 3:
-            from millvib_env.envs.actions import wide_actions
 
             self.env_kwargs = {"actions": wide_actions(table.log_gains.shape[-1])}
             self.gain_map = GainMap.from_config(load_env_config(config, **self.env_kwargs))
@@ -87,7 +86,6 @@ class LQRPolicy(PerEnvGains):
                               "ki": [0.0, 1.0e9], "kd": [0.0, 300.0], "kpl": [0.0, 1.0e-2]}}
 
     def __init__(self, weights, base_params, task: Task, loop=None):
-        from millvib_env.control.lqr import lqr_gains
 
         self.weights, self.base_params = weights, base_params
         #: the sampled loop's period (s), for a discrete-time design; None: the continuous design (v0)

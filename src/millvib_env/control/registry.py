@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 from millvib_env.control.base import Controller
+from millvib_env.control.lqr import LQRWeights
+from millvib_env.control.mpc import MPCPolicy, MPCSettings
 from millvib_env.control.policies import FixedGainPolicy, LQRPolicy, OraclePolicy
 from millvib_env.control.tuned import control_config_path, control_entry, entry_gains, oracle_table
 from millvib_env.envs.actions import GainMap
@@ -57,7 +59,6 @@ def gain_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: G
 
 
 def lqr_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
-    from millvib_env.control.lqr import LQRWeights
 
     entry = control_entry(task, name, version)
     return LQRPolicy(LQRWeights(**entry["weights"]), cfg.base_params, task, loop=cfg.loop)
@@ -73,7 +74,6 @@ def adaptive(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: Gain
 
 def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`)."""
-    from millvib_env.control.mpc import MPCPolicy, MPCSettings
 
     if version == "v0":
         raise ValueError(f"{name} runs on the loop as commissioned: use environment version v1, not v0")

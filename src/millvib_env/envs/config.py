@@ -15,9 +15,10 @@ from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Any, Callable, Mapping, NoReturn
 
-from millvib_env._paths import config_dir
 from millvib_env._checks import as_float, shown
+from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.loop.settings import LoopSettings
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
 __all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "CONFIG_ALIASES", "ENV_VERSIONS",
@@ -260,7 +261,6 @@ class EnvConfig:
     @property
     def loop(self):
         """The sampled loop's settings (`loop.LoopSettings`), or None for the analog loop (v0)."""
-        from millvib_env.loop.settings import LoopSettings
 
         section = self.raw.get("loop")
         return None if section is None else LoopSettings.from_config(section, 1.0 / self.control_dt_s)

@@ -30,15 +30,44 @@ from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
 from millvib_env.envs.reward import Reward
-from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
-from millvib_env.plant import kernel
 from millvib_env.loop import kernel as loop_kernel
 from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS, peek_samples
+from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
+from millvib_env.plant import kernel
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_ACC, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID,
-                                     C_UEXT, IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_PF, P_PS, P_UMAX, drive_vector,
-                                     pack, rated_flow, settled_state, state_scale)
+from millvib_env.plant.model import (
+    A_ACC,
+    A_PS,
+    A_U,
+    C_EA,
+    C_EP,
+    C_EW,
+    C_KD,
+    C_KFF,
+    C_KI,
+    C_KP,
+    C_KPL,
+    C_PID,
+    C_UEXT,
+    IPL,
+    IUI,
+    IV,
+    IX,
+    NAUX,
+    NC,
+    NPACK,
+    NY,
+    P_FL,
+    P_PF,
+    P_PS,
+    P_UMAX,
+    drive_vector,
+    pack,
+    rated_flow,
+    settled_state,
+    state_scale,
+)
 from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
 from millvib_env.threads import numba_threads, use_threads
 
@@ -364,7 +393,6 @@ class MillVibCore:
         velocity, acceleration, chamber and supply pressure, valve command, set-point, and the
         rolling force FL(t) from the load cells (nominal + steps + eccentricity). The PID's integral
         term and the bristle state are not measurements and are not included."""
-        from millvib_env.plant.model import A_PS, P_FL
 
         t = self.T[i] - self.period_s + self.dt_sample * np.arange(1, self.n_samp + 1)
         k0 = (self.k[i] - 1) * self.n_sub

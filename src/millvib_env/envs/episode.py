@@ -17,6 +17,7 @@ import numpy as np
 from millvib_env._checks import as_float, shown
 from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, check_profile
+from millvib_env.envs.scenarios import get_scenario
 from millvib_env.params import PARAM_FIELDS, MillParams
 from millvib_env.plant.model import initial_state, settled_state
 
@@ -84,7 +85,6 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     x0, jitter, settled = float(initial.x0_m), float(initial.x0_jitter_m), bool(initial.settled)
     scenario = options.get("scenario")
     if scenario is not None:
-        from millvib_env.envs.scenarios import get_scenario
 
         sc = get_scenario(scenario)
         # a scenario is a fixed plant: the config's base plant plus its own changes

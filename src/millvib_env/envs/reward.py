@@ -27,6 +27,7 @@ import numpy as np
 
 from millvib_env._checks import callable_or_none, shown
 from millvib_env.envs.config import RewardSettings
+from millvib_env.severity import severity_band
 
 __all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
 
@@ -79,7 +80,6 @@ class Reward:
         self.ema_gain = 1.0 - math.exp(-period_s / spec.vib_time_constant_s)
         from scipy import signal as ssig  # here, not at import: 1-2 s that a refused config should not wait for
 
-        from millvib_env.severity import severity_band
 
         self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,
                                                     output="sos"))

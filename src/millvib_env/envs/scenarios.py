@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
+from millvib_env.plant.integrate import simulate
 
 __all__ = ["Scenario", "SCENARIOS", "get_scenario", "list_scenarios", "measure_scenario", "format_scenarios",
            "COMMISSIONED_GAINS"]
@@ -90,7 +91,6 @@ def get_scenario(name: str) -> Scenario:
 def measure_scenario(name: str, t_end: float = 0.5, gains: PIDGains | None = None) -> dict:
     """Simulate a scenario under its fixed PID (or `gains`): severity, zone, motion, tracking."""
     from millvib_env.analysis.dynamics import classify_motion
-    from millvib_env.plant.integrate import simulate
 
     sc = get_scenario(name)
     run = simulate(sc.plant(), gains or sc.gains, t_end, x0=sc.x0_m)

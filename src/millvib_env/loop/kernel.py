@@ -28,10 +28,29 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from millvib_env.plant.kernel import advance
-from millvib_env.plant.model import (C_DFL, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID, C_PLREF,
-                                     C_UEXT, C_XD, IPL, IX, NY, P_UMAX, plant_rhs)
 from millvib_env.loop.settings import LS_FIELDS
+from millvib_env.plant.kernel import advance
+from millvib_env.plant.model import (
+    C_DFL,
+    C_EA,
+    C_EP,
+    C_EW,
+    C_KD,
+    C_KFF,
+    C_KI,
+    C_KP,
+    C_KPL,
+    C_PID,
+    C_PLREF,
+    C_UEXT,
+    C_XD,
+    IPL,
+    IX,
+    NY,
+    P_UMAX,
+    plant_rhs,
+)
+from millvib_env.threads import use_threads
 
 __all__ = ["CS_NAMES", "NCS", "read_sensors", "pid_law", "controller_sample", "peek_samples", "plant_drive",
            "advance_loop_batch", "start_state"]
@@ -222,6 +241,5 @@ def _advance_serial(P, C, Y, F, H, T, XD, DFL, NOISE, K0, CS, LS, active, spp, r
 
 def advance_loop_batch(P, *args) -> None:
     """`advance_loop_one` for every active plant, on threads or serially as `threads.use_threads` decides."""
-    from millvib_env.threads import use_threads
 
     (_advance_parallel if use_threads(P.shape[0], "step") else _advance_serial)(P, *args)

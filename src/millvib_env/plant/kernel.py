@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from millvib_env.plant.model import C_DFL, C_XD, D_VW, N_CORE_STATES, NAUX, NY, plant_rhs, state_ok
+from millvib_env.threads import use_threads
 
 OK, LEFT_ENVELOPE, STEP_UNDERFLOW, STEP_BUDGET = 0, 1, 2, 3
 STATUS_TEXT = {OK: "ok", LEFT_ENVELOPE: "left the physical envelope (non-finite state, stroke or pressure)",
@@ -254,14 +255,12 @@ def advance_batch_serial(P, C, Y, F, H, T, XD, DFL, active, dt_sub, spp, rtol, A
 
 def simulate_batch_kernel(P, *args) -> None:
     """The batched simulation on threads or serially, as `threads.use_threads` decides."""
-    from millvib_env.threads import use_threads
 
     (simulate_batch_parallel if use_threads(P.shape[0], "simulate") else simulate_batch_serial)(P, *args)
 
 
 def advance_batch(P, *args) -> None:
     """The environments' batched step on threads or serially, as `threads.use_threads` decides."""
-    from millvib_env.threads import use_threads
 
     (advance_batch_parallel if use_threads(P.shape[0], "step") else advance_batch_serial)(P, *args)
 

@@ -28,14 +28,16 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from millvib_env._checks import strings
-from millvib_env._paths import save_figure, write_text_atomic
-from millvib_env.control.agents import list_agents
+from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
+from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
-from millvib_env.control.registry import baseline_names
+from millvib_env.control.registry import REFERENCE, baseline_names
+from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
+from millvib_env.plant.model import rated_flow
 from millvib_env.tasks import Task, get_task
 from millvib_env.training.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.training.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
@@ -112,7 +114,6 @@ def actuator_summary(records: Sequence[Mapping[str, Any]]) -> dict:
 def loop_description(cfg: EnvConfig) -> dict:
     """The loop an environment config runs (the benchmark JSON's ``loop``): the controller's rate and delay,
     the amplifier's limit, the valve and the sensors; ``analog`` for the paper's continuous loop (v0)."""
-    from millvib_env.plant.model import rated_flow
 
     p = cfg.base_params
     valve = {"natural_frequency_hz": p.valve_wn_hz, "damping": p.valve_zeta, "xv_max_m": p.xv_max,
@@ -166,7 +167,6 @@ def _load_units(names: list[str], task: Task, all_seeds: bool,
                 version: str, progress: bool = False) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
-    from millvib_env.control.agents import agent_seeds
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
@@ -196,7 +196,6 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, e
     CHUNK episodes (each episode depends only on its seeds, so the records are the same)."""
     records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None:
-        from millvib_env.distributed import run_jobs
 
         jobs = [{"name": n, "task": task.name, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
                 for n, s in units for i in range(0, len(plants), CHUNK)]
@@ -233,7 +232,6 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
     (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
     controllers are the baselines and the agents trained in that version."""
-    from millvib_env.control.registry import REFERENCE
 
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
@@ -550,7 +548,6 @@ def public_json(result: dict) -> dict:
 def _write_outputs(result: dict, out: Path) -> list[Path]:
     """Write the result folder as a whole: into a temporary sibling, then put in place
     (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files."""
-    from millvib_env._paths import atomic_folder
 
     with atomic_folder(out, command="benchmark") as tmp:
         files = _write_files(result, tmp)
@@ -733,7 +730,6 @@ def headroom_from_cli(args) -> int:
 
 
 def benchmark_from_cli(args) -> int:
-    from millvib_env._paths import check_output, check_result_folder
 
     check_output(args.json, "--json")
     check_result_folder(args.out, "--out", "benchmark", others=(("--json", args.json),))

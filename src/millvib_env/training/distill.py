@@ -33,9 +33,15 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._paths import write_text_atomic
+from millvib_env._checks import integer, real
+from millvib_env._paths import atomic_folder, write_text_atomic
+from millvib_env.control.factory import load_controller
 from millvib_env.control.named import resolve_named_gains
+from millvib_env.control.normalization import ObsStats
+from millvib_env.envs.batch import EpisodeBatch
+from millvib_env.loop.kernel import K_UCTRL
 from millvib_env.tasks import Task, get_task
+from millvib_env.training.train import validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
 
@@ -68,8 +74,6 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
     baseline's, both computed from the same state."""
     import torch
 
-    from millvib_env.envs.batch import EpisodeBatch
-    from millvib_env.loop.kernel import K_UCTRL
 
     venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains({"config": task.config, **env_kwargs},
                                                                   task=task, version="v1"))
@@ -135,15 +139,10 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
+    import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
 
-    import gymnasium as gym
-
-    from millvib_env._checks import integer
-    from millvib_env.control.factory import load_controller
-    from millvib_env.control.normalization import ObsStats
-    from millvib_env.training.train import validation_result
 
     t = get_task(task)
     seed = integer("seed", seed, lo=0, hi=49)
@@ -155,7 +154,6 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     epochs = integer("epochs", epochs, lo=1, hi=1000)
     torch.manual_seed(seed)
     env_id = "MillVib-Valve-v1"
-    from millvib_env._checks import real
 
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
@@ -210,7 +208,6 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
                  "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
                                                       "(iteration 0, the reference alone, never among them)"}})
     write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
-    from millvib_env._paths import atomic_folder
 
     import shutil
 

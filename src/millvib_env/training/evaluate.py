@@ -17,6 +17,7 @@ from millvib_env._checks import instance, integer, integers, real
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
+from millvib_env.plant.model import A_ACC, A_U, IV, IX
 from millvib_env.tasks import Task, get_task
 
 __all__ = ["run_episodes", "episode_cost", "scored_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS",
@@ -161,7 +162,6 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
                   env_kwargs: dict | None = None, task: str | Task | None = None) -> dict:
     """One episode with every plant sample kept: t, x, v, a, u and the set-point xd (10 kHz) and, in gain
     mode, the gains of every agent step (empty for valve policies)."""
-    from millvib_env.plant.model import A_ACC, A_U, IV, IX
 
     instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
     seed = integer("seed", seed, lo=0)

@@ -13,6 +13,7 @@ import ast
 from pathlib import Path
 from typing import Any
 
+from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
 __all__ = ["parse_zoo_value", "load_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
@@ -61,7 +62,6 @@ def parse_zoo_value(value: Any, where: str = "value") -> Any:
 
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
     """The hyperparameters of `algo` for `env_id` from configs/agents/<algo>.yml (or `path`)."""
-    from millvib_env._paths import config_dir
 
     path = Path(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     if not path.is_file():

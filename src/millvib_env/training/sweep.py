@@ -19,8 +19,14 @@ from typing import Sequence
 import numpy as np
 
 from millvib_env._checks import integer, strings
+from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
+from millvib_env.control.factory import load_controller
+from millvib_env.distributed import run_jobs
+from millvib_env.envs.batch import env_id_for
 from millvib_env.params import studied_range
 from millvib_env.tasks import Task, get_task
+from millvib_env.training.benchmark import episode_records, format_table, summarize
+from millvib_env.training.evaluate import COST_SCALES
 
 __all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
 
@@ -48,16 +54,12 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
               env_version: str = "v1") -> dict:
     """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}. Baselines run
     in environment version `env_version` (agents in their own)."""
-    from millvib_env.control.factory import load_controller
-    from millvib_env.distributed import run_jobs
-    from millvib_env.training.benchmark import episode_records, summarize
 
     t = get_task(task)
     plants = integer("--plants", plants, lo=1, hi=len(t.seeds["heldout"]) - SEED_OFFSET)
     controllers = strings("controllers", controllers, "controller names")
     params = list(dict.fromkeys(strings("params", params, "parameter names")))
     seed = None if seed is None else integer("seed", seed, lo=0)
-    from millvib_env.envs.batch import env_id_for
 
     env_id = env_id_for("gain", env_version)
     randomize = _randomize(t, params, env_version)
@@ -81,7 +83,6 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
 
 
 def write_sweep(result: dict, out: str | Path) -> list[Path]:
-    from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
 
     out = Path(out)
     params = result["summary"]["params"]
@@ -133,13 +134,10 @@ def _maps(result: dict):
 
 
 def sweep_from_cli(args) -> int:
-    from millvib_env._paths import check_result_folder
-    from millvib_env.training.benchmark import format_table
 
     check_result_folder(args.out, "--out", "sweep")
     result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
                        ray=args.ray, processes=args.jobs, progress=not args.quiet, env_version=args.env_version)
-    from millvib_env.training.evaluate import COST_SCALES
 
     s = result["summary"]
     ranges = ", ".join(f"{p} {lo:g}-{hi:g} ({kind})" for p, (kind, lo, hi) in s["ranges"].items())

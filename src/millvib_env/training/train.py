@@ -26,15 +26,29 @@ from typing import cast
 
 import numpy as np
 
-from millvib_env._paths import write_text_atomic
-from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.control.manifest import EVAL_CURVE
 from millvib_env.control.named import resolve_named_gains
-from millvib_env.envs.batch import env_version
+from millvib_env.training.hyperparams import load_hyperparams
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
-from millvib_env.control.agents import ALGOS  # noqa: E402 (one list of algorithms)
+from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
+from millvib_env.control.agents import (
+    AGENT_ENV_KEYS,
+    ALGOS,  # noqa: E402 (one list of algorithms)
+    SEED_FOLDER,
+    AgentPolicy,
+    algo_class,
+)
+from millvib_env.control.normalization import STATS_FILE, save_obs_stats
+from millvib_env.distributed import run_jobs
+from millvib_env.envs.batch import env_mode, env_version
+from millvib_env.envs.specs import ENV_SPECS
+from millvib_env.tasks import get_task
+from millvib_env.threads import serial_unless_set
+from millvib_env.training.benchmark import summarize
+from millvib_env.training.evaluate import run_episodes
+
 #: the files of an agent folder (`--save-dir`), which a new training of it replaces
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
@@ -48,7 +62,6 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
 
-    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
 
     class FixedPlantsEval(base):
         best_timesteps = 0
@@ -90,7 +103,6 @@ def _agent_env_kwargs(raw, task) -> dict:
     """The hyperparameters' env_kwargs, refused now (not when the finished agent is loaded) where a card could
     not carry them: not a mapping, a key that changes the episode (`control.agents.AGENT_ENV_KEYS`), another
     task's config."""
-    from millvib_env.control.agents import AGENT_ENV_KEYS
 
     raw = raw or {}
     if not isinstance(raw, dict):
@@ -107,7 +119,6 @@ def _agent_env_kwargs(raw, task) -> dict:
 
 def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
     """True where the zero action is a controller (a relative gain action's base, a residual's PID)."""
-    from millvib_env.envs.batch import env_mode
 
     acts = env_kwargs.get("actions") or {}
     return bool(env_kwargs.get("residual")) if env_mode(env_id) == "valve" else bool(acts.get("relative"))
@@ -217,7 +228,6 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
     """Train one agent; returns its model card (also written to the run folder). Keyword arguments
     as `_train`. The plant runs serially unless MILLVIB_NUM_THREADS says otherwise: the learner
     dominates and idle plant threads slow torch (`millvib_env.threads`)."""
-    from millvib_env.threads import serial_unless_set
 
     with serial_unless_set():
         return _train(algo, env_id, **kwargs)
@@ -225,7 +235,6 @@ def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
 
 def _check_id_runs_task(env_id: str, task) -> None:
     """A per-task env id (`envs.specs.ENV_SPECS`: one with a config of its own) trains only its own task."""
-    from millvib_env.envs.specs import ENV_SPECS
 
     spec = ENV_SPECS.get(env_id)
     if spec is not None and spec.config is not None and spec.config != task.config:
@@ -269,10 +278,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     from stable_baselines3.common.vec_env import VecNormalize
 
     from millvib_env.envs.vec_env import make_vec_env
-    from millvib_env.tasks import get_task
 
     algo = algo.lower()
-    from millvib_env.control.agents import algo_class
 
     cls = algo_class(algo, backend)
     the_task = get_task(task)
@@ -368,7 +375,6 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
     (`select` "best") the best evaluated one; returns what was selected, or None for the final one."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from millvib_env.control.normalization import STATS_FILE, save_obs_stats
 
     normalized = isinstance(venv, VecNormalize)
     if normalized:
@@ -386,8 +392,6 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
 
 def _save_agent(dest: Path, run: Path, card: dict) -> None:
     """The agent folder `dest` (--save-dir): model, statistics, curve and card, replaced as a whole."""
-    from millvib_env._paths import atomic_folder
-    from millvib_env.control.agents import SEED_FOLDER
 
     card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
     with atomic_folder(dest) as tmp:
@@ -399,9 +403,6 @@ def _save_agent(dest: Path, run: Path, card: dict) -> None:
 
 def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     """Mean severity, tracking and cost of the agent in `folder` on the validation plants."""
-    from millvib_env.control.agents import AgentPolicy
-    from millvib_env.training.benchmark import summarize
-    from millvib_env.training.evaluate import run_episodes
 
     folder = Path(folder)
     if card is not None:  # the card is written after this: give the loader what it needs
@@ -419,8 +420,6 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
     """Train several seeds: in `jobs` local spawned processes (no thread pool or torch state is
     inherited), or each as a Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local
     cluster, or an address). Seed s is saved to `save_dir`/seed-<s>/. Returns the cards in seed order."""
-    from millvib_env.distributed import run_jobs
-    from millvib_env.tasks import get_task
 
     seeds = list(dict.fromkeys(seeds))
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
@@ -434,7 +433,6 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
 
 
 def train_from_cli(args) -> int:
-    from millvib_env._paths import check_output, check_result_folder
 
     check_output(args.log_dir, "--log-dir", folder=True)
     if args.save_dir is not None:

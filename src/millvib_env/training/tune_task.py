@@ -34,8 +34,14 @@ from typing import Any, Callable
 
 import numpy as np
 
-from millvib_env.envs.config import cached_env_config
+from millvib_env._paths import check_output, write_text_atomic
+from millvib_env._yaml import load_yaml
+from millvib_env.control.base import GainTable
+from millvib_env.control.factory import control_config_path, control_entry, oracle_table
+from millvib_env.control.lqr import LQRWeights, lqr_gains
+from millvib_env.envs.config import cached_env_config, load_env_config
 from millvib_env.tasks import Task, get_task
+from millvib_env.training import tuning  # the searches, called through the module (a test stands them in)
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
 
@@ -65,8 +71,6 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
     at its 300 V s/m limit, the LQR design of the task's centre plant, and (where given) the tuned PID
     `pid` (log10 KP, KI, KD) with the weakest pressure feedback, so the search never ends above the PID
     it extends."""
-    from millvib_env.control.lqr import LQRWeights, lqr_gains
-    from millvib_env.envs.config import load_env_config
 
     grid = np.stack(np.meshgrid([5.5, 6.0, 6.5], [7.0, 8.0, 9.0], [np.log10(300.0)], [-5.0, -4.5, -4.0, -3.5],
                                 indexing="ij"), axis=-1).reshape(-1, 4)
@@ -74,8 +78,6 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
     centre = {d.name: math.sqrt(d.low * d.high) for d in cfg.randomize if d.name in ("c1", "Ct")}
     starts = [grid]
     try:
-        from millvib_env.control.factory import control_entry
-
         weights = LQRWeights(**control_entry(task, "lqr-oracle", version)["weights"])
     except (ValueError, KeyError, TypeError):
         weights = LQRWeights()
@@ -86,22 +88,20 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
     except (np.linalg.LinAlgError, ValueError):
         pass
     if pid is not None:
-        from millvib_env.training.tuning import PF_BOUNDS
 
-        starts.append(np.r_[np.asarray(pid, float)[:3], math.log10(PF_BOUNDS["kpl"][0])][None, :])
+        starts.append(np.r_[np.asarray(pid, float)[:3], math.log10(tuning.PF_BOUNDS["kpl"][0])][None, :])
     return np.concatenate(starts)
 
 
 def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trials: int, say,
                       version: str = "v0") -> dict[str, Any]:
     """pid-nominal and pid-robust (those in `todo`) tuned by Optuna studies in `storage`."""
-    from millvib_env.training.tuning import tune_optuna
 
     out: dict[str, Any] = {}
     for name, s, pinned in (("pid-nominal", seeds["nominal"], NOMINAL_PLANT), ("pid-robust", seeds["robust"], None)):
         if name in todo:
             say(f"tuning {name} with Optuna ({storage}) ...")
-            res = tune_optuna(s, task=t, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
+            res = tuning.tune_optuna(s, task=t, storage=storage, study_name=f"{t.name}-{name}", n_trials=trials,
                               params=pinned, version=version)
             out[name] = {**res, "seeds": [s[0], s[-1]],
                          "how": f"Optuna TPE study {t.name}-{name} over log10 gains ({res['n_trials']} trials)"}
@@ -142,48 +142,43 @@ class _Run:
 
 
 def _tune_nominal(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune
 
     r.say("tuning pid-nominal on the nominal plant ...")
-    res = tune(r.seeds["nominal"], task=r.t, params=NOMINAL_PLANT, version=r.version,
+    res = tuning.tune(r.seeds["nominal"], task=r.t, params=NOMINAL_PLANT, version=r.version,
                progress=r.bar("pid-nominal"))
     return _gain_entry(res, r.seeds["nominal"], "tuned on the nominal plant only (c1 = 2.25e6, Ct = 5e-16), 8 "
                                                 "disturbance draws")
 
 
 def _tune_robust(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune
 
     r.say("tuning pid-robust over 32 tuning plants ...")
-    res = tune(r.seeds["robust"], task=r.t, version=r.version, progress=r.bar("pid-robust"))
+    res = tuning.tune(r.seeds["robust"], task=r.t, version=r.version, progress=r.bar("pid-robust"))
     return _gain_entry(res, r.seeds["robust"], "one set of gains minimising the mean cost over 32 plants of the task")
 
 
 def _tune_pid_oracle(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune
 
     return _tuned_table(r.t, r.grid, "pid-oracle", r.seeds["oracle"], r.progress, (
         "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
         "(log c1, log Ct) between grid points"),
-        lambda plant: tune(r.seeds["oracle"], task=r.t, params=plant, refine_iters=40, version=r.version),
+        lambda plant: tuning.tune(r.seeds["oracle"], task=r.t, params=plant, refine_iters=40, version=r.version),
         r.version)
 
 
 def _tune_lqr(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune_lqr
 
     r.say("tuning lqr-oracle weights ...")
-    res = tune_lqr(r.seeds["robust"], task=r.t, version=r.version)
+    res = tuning.tune_lqr(r.seeds["robust"], task=r.t, version=r.version)
     return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
             "how": "LQR weights (grid, then Nelder-Mead) minimising the mean cost of per-plant designs over 32 "
                    "tuning plants"}
 
 
 def _tune_adaptive(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune_adaptive
 
     r.say("tuning pid-adaptive forgetting time ...")
-    res = tune_adaptive(r.seeds["robust"], task=r.t, table=_table(r.current("pid-oracle"), r.version),
+    res = tuning.tune_adaptive(r.seeds["robust"], task=r.t, table=_table(r.current("pid-oracle"), r.version),
                         version=r.version)
     return {**res, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
             "how": "estimator forgetting time constant with the lowest mean cost over 32 tuning plants; gains "
@@ -192,9 +187,8 @@ def _tune_adaptive(r: _Run) -> dict:
 
 def _refined(r: _Run, name: str, starts: np.ndarray, iters: int, how: str) -> dict:
     """A fixed-gain entry refined by Nelder-Mead from `starts` over the pid-robust plants; says its gains."""
-    from millvib_env.training.tuning import tune_from
 
-    res = tune_from(starts, r.seeds["robust"], task=r.t, refine_iters=iters, version=r.version,
+    res = tuning.tune_from(starts, r.seeds["robust"], task=r.t, refine_iters=iters, version=r.version,
                     progress=r.bar(name))
     entry = _gain_entry(res, r.seeds["robust"], how)
     r.say(f"  {entry['gains']} cost {res.cost:.4f}")
@@ -222,11 +216,10 @@ def _tune_pf_ff(r: _Run) -> dict:
 
 
 def _tune_pf_oracle(r: _Run) -> dict:
-    from millvib_env.training.tuning import tune_from
 
     base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
     return _tuned_table(r.t, r.grid, "pid-pf-oracle", r.seeds["pf-oracle"], r.progress, PF_ORACLE_HOW,
-                        lambda plant: tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t, refine_iters=60,
+                        lambda plant: tuning.tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t, refine_iters=60,
                                                 step_decades=0.2, params=plant, version=r.version), r.version)
 
 
@@ -296,8 +289,6 @@ def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
 
 
 def _table(entry: dict, version: str = "v0"):
-    from millvib_env.control.base import GainTable
-    from millvib_env.control.factory import oracle_table
 
     if "from_task" in entry:  # the entry names a task: resolved where the name enters
         return oracle_table(get_task(entry["from_task"]), version=version)
@@ -334,8 +325,6 @@ def merge_entries(shipped: dict, tuned: dict, *, force: bool = False) -> tuple[d
 def tune_from_cli(args) -> int:
     import yaml
 
-    from millvib_env._paths import check_output, write_text_atomic
-    from millvib_env._yaml import load_yaml
 
     t = args.task  # resolved by the CLI
     if bool(args.out) == bool(args.write_config):
@@ -345,7 +334,6 @@ def tune_from_cli(args) -> int:
         raise ValueError(f"--trials {args.trials} is invalid: a whole number >= 1")
     if not 2 <= args.grid <= 12:
         raise ValueError(f"--grid {args.grid} is invalid: 2-12 points per axis")
-    from millvib_env.control.factory import control_config_path
 
     version = args.env_version
     shipped_path = control_config_path(t, version)

@@ -16,8 +16,11 @@ import numpy as np
 from scipy import optimize
 
 from millvib_env.control.base import Controller
+from millvib_env.control.factory import oracle_table
+from millvib_env.control.lqr import LQRWeights, lqr_gains
+from millvib_env.control.policies import LQRPolicy
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
-from millvib_env.envs.batch import env_id_for
+from millvib_env.envs.batch import EpisodeBatch, env_id_for
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import Task
 from millvib_env.training.evaluate import run_episodes
@@ -173,7 +176,6 @@ def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=G
 
 def plants_of(seeds: Sequence[int], task: Task, version: str = "v0") -> list:
     """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
-    from millvib_env.envs.batch import EpisodeBatch
 
     batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=task.config)
     batch.reset(seeds)
@@ -187,8 +189,6 @@ def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: Task, chunk:
     Each plant's gains are designed for its true c1 and Ct, as `lqr-oracle` does; a design that
     fails (no stabilising solution) costs 1e6.
     """
-    from millvib_env.control.lqr import lqr_gains
-    from millvib_env.control.policies import LQRPolicy
 
     env_kwargs: dict[str, Any] = {"config": task.config, **LQRPolicy.ENV_KWARGS}
     cfg = load_env_config(**env_kwargs, version=version)
@@ -225,7 +225,6 @@ LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1
 
 def tune_lqr(seeds: Sequence[int], *, task: Task, refine_iters: int = 40, version: str = "v0") -> dict:
     """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
-    from millvib_env.control.lqr import LQRWeights
 
     keys = ("q_v", "q_p", "q_i", "r")
     grid = [dict(zip(keys + ("friction",), combo)) for combo in np.stack(np.meshgrid(
@@ -266,7 +265,6 @@ def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = A
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
-    from millvib_env.control.factory import oracle_table
 
     cfg = task.env_config(version)
     table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
