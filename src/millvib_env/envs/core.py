@@ -36,38 +36,9 @@ from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
 from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (
-    A_ACC,
-    A_PS,
-    A_U,
-    C_EA,
-    C_EP,
-    C_EW,
-    C_KD,
-    C_KFF,
-    C_KI,
-    C_KP,
-    C_KPL,
-    C_PID,
-    C_UEXT,
-    IPL,
-    IUI,
-    IV,
-    IX,
-    NAUX,
-    NC,
-    NPACK,
-    NY,
-    P_FL,
-    P_PF,
-    P_PS,
-    P_UMAX,
-    drive_vector,
-    pack,
-    rated_flow,
-    settled_state,
-    state_scale,
-)
+from millvib_env.plant.model import (A_ACC, A_PS, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID, C_UEXT,
+                                     IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_FL, P_PF, P_PS, P_UMAX, drive_vector,
+                                     pack, rated_flow, settled_state, state_scale)
 from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
 from millvib_env.threads import numba_threads, use_threads
 

@@ -30,26 +30,8 @@ from numba import njit, prange
 
 from millvib_env.loop.settings import LS_FIELDS
 from millvib_env.plant.kernel import advance
-from millvib_env.plant.model import (
-    C_DFL,
-    C_EA,
-    C_EP,
-    C_EW,
-    C_KD,
-    C_KFF,
-    C_KI,
-    C_KP,
-    C_KPL,
-    C_PID,
-    C_PLREF,
-    C_UEXT,
-    C_XD,
-    IPL,
-    IX,
-    NY,
-    P_UMAX,
-    plant_rhs,
-)
+from millvib_env.plant.model import (C_DFL, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID, C_PLREF, C_UEXT,
+                                     C_XD, IPL, IX, NY, P_UMAX, plant_rhs)
 from millvib_env.threads import use_threads
 
 __all__ = ["CS_NAMES", "NCS", "read_sensors", "pid_law", "controller_sample", "peek_samples", "plant_drive",
