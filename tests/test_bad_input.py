@@ -38,7 +38,7 @@ ODD = ["0", "-1", "1", "2.5", "1e9", "nan", "inf", "abc", "", "99999999", "/proc
 FLAGS = {
     # each base runs in a few seconds when every drawn value is valid
     "reproduce": (["--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet", "--out", "r"],
-                  ["--t-end", "--resolution", "--out", "--method"]),
+                  ["--t-end", "--resolution", "--out", "--method", "--jobs"]),
     "bench": (["--t-end", "0.05", "--repeats", "1", "--plant-only", "--quiet"], ["--t-end", "--repeats", "--json"]),
     "tune": (["--only", "pid-nominal", "--quiet", "--grid", "abc"],  # --grid abc: never tunes
              ["--task", "--only", "--from", "--optuna", "--trials", "--out"]),
@@ -304,7 +304,7 @@ def _api_calls():
                               ["params", "gains", "xd"]),
         "critical_kp": (lambda **k: critical_kp(**{"params": p, **k}), ["params", "ki", "kd"]),
         "stability_map": (lambda **k: stability_map(**{"c1_values": [2e5], "Ct_values": [1e-11], **k}),
-                          ["c1_values", "Ct_values", "base"]),
+                          ["c1_values", "Ct_values", "base", "processes"]),
         "lqr_gains": (lambda **k: lqr_gains(**{"params": p, "weights": LQRWeights(), **k}),
                       ["params", "weights", "xd"]),
         "load_controller": (lambda **k: load_controller(**{"name": "pid-robust", **k}),

@@ -32,7 +32,8 @@ from typing import Literal, Sequence
 import numpy as np
 from scipy import optimize
 
-from millvib_env._checks import instance, real, reals
+from millvib_env._checks import instance, integer, real, reals
+from millvib_env.distributed import run_jobs
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import (A_XV, C_DFL, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES, VALVE_STATES,
@@ -308,17 +309,24 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
 
 def stability_map(c1_values: Sequence[float] | np.ndarray, Ct_values: Sequence[float] | np.ndarray, *,
                   base: MillParams | None = None, ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
-                  progress: bool = False) -> np.ndarray:
-    """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values))."""
+                  progress: bool = False, processes: int = 1) -> np.ndarray:
+    """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values)); the cells in `processes`
+    spawned processes (each cell is independent: the same numbers as one process)."""
+    return stability_maps(c1_values, Ct_values, frictions=(friction,), base=base, ki=ki, kd=kd, progress=progress,
+                          processes=processes)[0]
+
+
+def stability_maps(c1_values: Sequence[float] | np.ndarray, Ct_values: Sequence[float] | np.ndarray, *,
+                   frictions: Sequence[Friction] = ("stick", "sliding"), base: MillParams | None = None,
+                   ki: float = 1e-3, kd: float = 0.0, progress: bool = False, processes: int = 1) -> np.ndarray:
+    """`stability_map` for each of `frictions`, every cell in one pool of `processes` processes: shape
+    (len(frictions), len(c1_values), len(Ct_values))."""
     c1_values = reals("c1_values", c1_values, lo=0.0, lo_open=True)
     Ct_values = reals("Ct_values", Ct_values, lo=0.0)
     base = MillParams() if base is None else instance("base", base, MillParams, "None or a MillParams")
-    out = np.empty((len(c1_values), len(Ct_values)))
-    cells = [(i, j) for i in range(len(c1_values)) for j in range(len(Ct_values))]
-    if progress:
-        from tqdm.auto import tqdm
-        cells = tqdm(cells, desc=f"stability map ({friction})", unit="cell")
-    for i, j in cells:
-        out[i, j] = critical_kp(base.replace(c1=float(c1_values[i]), Ct=float(Ct_values[j])), ki, kd,
-                                friction=friction)
-    return out
+    processes = integer("processes", processes, lo=1, hi=1024)
+    jobs = [{"params": base.replace(c1=float(c1), Ct=float(ct)), "ki": ki, "kd": kd, "friction": friction}
+            for friction in frictions for c1 in c1_values for ct in Ct_values]
+    crit = run_jobs(critical_kp, jobs, processes=processes, progress=progress,
+                    desc=f"stability map ({', '.join(frictions)})")
+    return np.array(crit, dtype=float).reshape(len(frictions), len(c1_values), len(Ct_values))

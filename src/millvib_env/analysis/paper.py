@@ -23,10 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env._checks import integer
 from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
-from millvib_env.analysis.linear import Friction, critical_kp, stability_map
+from millvib_env.analysis.linear import Friction, critical_kp, stability_maps
 from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
+from millvib_env.distributed import run_jobs
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import SimResult, simulate_batch
 from millvib_env.severity import iso_zone
@@ -120,7 +122,8 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
     return path
 
 
-def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -> tuple[Path, Path]:
+def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
+                processes: int = 1) -> tuple[Path, Path]:
     """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal."""
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
@@ -156,9 +159,11 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
 
     c1_fine = np.geomspace(c1s[0], c1s[-1], 40)
     frictions: tuple[tuple[Friction, str], ...] = (("stick", "-"), ("sliding", "--"))
-    for friction, style in frictions:
-        crit = [critical_kp(MillParams(c1=c), PAPER_GAINS.ki, friction=friction) for c in c1_fine]
-        ax.plot(crit, c1_fine, "k" + style, lw=1.2, label=f"linear KP_crit ({friction})")
+    crit = run_jobs(critical_kp, [{"params": MillParams(c1=c), "ki": PAPER_GAINS.ki, "friction": friction}
+                                  for friction, _ in frictions for c in c1_fine], processes=processes)  # one pool
+    for n, (friction, style) in enumerate(frictions):
+        ax.plot(crit[n * len(c1_fine):(n + 1) * len(c1_fine)], c1_fine, "k" + style, lw=1.2,
+                label=f"linear KP_crit ({friction})")
     ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
@@ -167,15 +172,14 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool) -
     return png, csv_path
 
 
-def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool) -> tuple[Path, Path]:
+def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes: int = 1) -> tuple[Path, Path]:
     """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
     import matplotlib.pyplot as plt
 
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     cts = np.geomspace(*studied_range("Ct"), n_ct)
-    stick = stability_map(c1s, cts, friction="stick", progress=progress)
-    slide = stability_map(c1s, cts, friction="sliding", progress=progress)
+    stick, slide = stability_maps(c1s, cts, frictions=("stick", "sliding"), progress=progress, processes=processes)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     picks_ct = [0, n_ct // 2, n_ct - 1]
     picks_c1 = [0, n_c1 // 2, n_c1 - 1]
@@ -236,24 +240,25 @@ def claims(results: list[CaseResult]) -> list[dict]:
 
 def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", maps: bool = True,
               map_resolution: int = 14, progress: bool = True, solver_study: bool = True,
-              solver_study_only: bool = False) -> dict:
+              solver_study_only: bool = False, jobs: int = 1) -> dict:
     """Run the studies, write figures (PNG) and numbers (CSV, JSON) into `out_dir`.
 
     `solver_study`: also integrate the nine cases with ode45's default tolerances and a ladder of
     tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
-    existing summary.json are kept).
+    existing summary.json are kept). `jobs`: spawned processes for the stability maps' cells and the solver
+    study's runs (each independent: the same files as one process).
     """
-
+    jobs = integer("jobs", jobs, lo=1, hi=1024)
     final = Path(out_dir)
     with atomic_folder(final, keep_existing=solver_study_only, command="reproduce") as out:
         summary = _reproduce_into(out, t_end, method, maps, map_resolution, progress, solver_study,
-                                  solver_study_only)
+                                  solver_study_only, jobs)
     summary["files"] = [str(final / Path(f).name) for f in summary["files"]]
     return summary
 
 
 def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
-                    solver_study_only) -> dict:
+                    solver_study_only, jobs: int = 1) -> dict:
     files: list[Path] = []
     summary: dict = {}
     if solver_study_only:
@@ -266,14 +271,14 @@ def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, so
             files.append(_plot_study(study, runs[study.key], out))
             files.append(_plot_severity(study, [r for r in results if r.study == study.key], out))
         if maps:
-            files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress))
-            files.extend(_stability_figure(out, map_resolution, map_resolution, progress))
+            files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress, jobs))
+            files.extend(_stability_figure(out, map_resolution, map_resolution, progress, jobs))
         summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
                    "cases": [r.row() for r in results]}
     if solver_study or solver_study_only:
         from millvib_env.analysis.solver_study import format_solver_table, plot_solver_study, run_solver_study, verdicts
 
-        rows, solver_runs = run_solver_study(t_end, progress=progress)
+        rows, solver_runs = run_solver_study(t_end, progress=progress, processes=jobs)
         files.append(_write_csv(out / "solver_study.csv", [r.row() for r in rows]))
         files.extend(plot_solver_study(rows, solver_runs, out))
         summary["solver_study"] = {"rows": [r.row() for r in rows], "verdicts": verdicts(rows)}

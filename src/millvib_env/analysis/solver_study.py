@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env._checks import integer
 from millvib_env._paths import save_figure
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.studies import PAPER_STUDIES
+from millvib_env.distributed import run_jobs
 from millvib_env.plant.integrate import SimResult, simulate
 
 __all__ = ["SolverRun", "SOLVERS", "run_solver_study", "verdicts", "format_solver_table", "plot_solver_study"]
@@ -90,27 +92,31 @@ def _run(case, setting: SolverSetting, t_end: float) -> tuple[SimResult, float]:
     return run, time.perf_counter() - start
 
 
+def _solver_job(study_key: str, case, setting: SolverSetting, t_end: float,
+                keep: bool) -> tuple[SolverRun, SimResult | None]:
+    """One case under one solver setting: its row, and its run where `keep` (a job of `run_solver_study`)."""
+    run, wall = _run(case, setting, t_end)
+    motion = classify_motion(run, tail=TAIL)
+    ptp = 2 * motion.amplitude_m * 1e6 if not run.diverged else math.nan
+    row = SolverRun(case.label, study_key, setting.name, setting.rtol, setting.atol,
+                    None if setting.max_step_fraction is None else setting.max_step_fraction * t_end,
+                    ptp, motion.frequency_hz, motion.label, int(run.n_steps), wall)
+    return row, (run if keep else None)
+
+
 def run_solver_study(t_end: float = 1.0, solvers=SOLVERS, progress: bool = True, keep_runs: bool = True,
-                     cases=None) -> tuple[list[SolverRun], dict]:
-    """Every case (default: the nine, as (study, case) pairs) under every solver setting; returns the
+                     cases=None, processes: int = 1) -> tuple[list[SolverRun], dict]:
+    """Every case (default: the nine, as (study, case) pairs) under every solver setting, in `processes`
+    spawned processes (each run is independent: the same rows as one process, wall times aside); returns the
     rows and {(case, solver): SimResult} of the first and last settings."""
+    processes = integer("processes", processes, lo=1, hi=1024)
     if cases is None:
         cases = [(study, case) for study in PAPER_STUDIES for case in study.cases]
-    jobs = [(study, case, s) for study, case in cases for s in solvers]
-    iterator = jobs
-    if progress:
-        from tqdm.auto import tqdm
-        iterator = tqdm(jobs, desc="solver study", unit="run")
-    rows, runs = [], {}
-    for study, case, setting in iterator:
-        run, wall = _run(case, setting, t_end)
-        motion = classify_motion(run, tail=TAIL)
-        ptp = 2 * motion.amplitude_m * 1e6 if not run.diverged else math.nan
-        rows.append(SolverRun(case.label, study.key, setting.name, setting.rtol, setting.atol,
-                              None if setting.max_step_fraction is None else setting.max_step_fraction * t_end,
-                              ptp, motion.frequency_hz, motion.label, int(run.n_steps), wall))
-        if keep_runs and setting in (solvers[0], solvers[-1]):
-            runs[(case.label, setting.name)] = run
+    jobs = [{"study_key": study.key, "case": case, "setting": s, "t_end": t_end,
+             "keep": keep_runs and s in (solvers[0], solvers[-1])} for study, case in cases for s in solvers]
+    done = run_jobs(_solver_job, jobs, processes=processes, progress=progress, desc="solver study")
+    rows = [row for row, _ in done]
+    runs = {(row.case, row.solver): run for row, run in done if run is not None}
     return rows, runs
 
 

@@ -76,6 +76,14 @@ class SimResult:
             self._aux = self._aux_fn()
         return self._aux
 
+    def __getstate__(self) -> dict:
+        """For pickling (a run that comes back from another process): the auxiliary outputs computed, in place
+        of the function that computes them."""
+        state = dict(self.__dict__)
+        if state.get("_aux_fn") is not None:
+            state["_aux"], state["_aux_fn"] = self.aux, None
+        return state
+
     if TYPE_CHECKING:  # one column per state and auxiliary output, set below from the layout in plant.model
         def __getattr__(self, name: str) -> np.ndarray: ...
 
