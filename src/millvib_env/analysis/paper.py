@@ -176,7 +176,6 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes
     """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
     import matplotlib.pyplot as plt
 
-
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     cts = np.geomspace(*studied_range("Ct"), n_ct)
     stick, slide = stability_maps(c1s, cts, frictions=("stick", "sliding"), progress=progress, processes=processes)

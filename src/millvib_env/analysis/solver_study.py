@@ -167,7 +167,6 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     cases = list(dict.fromkeys(r.case for r in rows))
     default, converged = rows[0].solver, rows[-1].solver
     fig, axes = plt.subplots(3, 3, figsize=(12, 10))

@@ -16,7 +16,7 @@ from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.manifest import verify_agent
-from millvib_env.control.named import resolve_named_gains
+from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_version
@@ -162,8 +162,8 @@ class AgentPolicy(Controller):
         self.task = card_task(self.card)
 
         # a card may name the gain set its policy builds on (``residual_gains: pid-pf-robust``): numbers from here on
-        self.env_kwargs = resolve_named_gains(self.card.get("env_kwargs", {}), task=self.task,
-                                              version=env_version(self.env_id))
+        self.env_kwargs = resolve_named_gains_for(self.card.get("env_kwargs", {}), self.task,
+                                                  version=env_version(self.env_id))
         algo = str(self.card["algo"]).lower()
         self.backend = str(self.card.get("backend", "sb3"))
         cls = algo_class(algo, self.backend)

@@ -125,13 +125,11 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     return a summary (the file, its inputs, the largest difference, the time per call at batch 1)."""
     import io
 
-
     check_steps = integer("check_steps", check_steps, lo=1, hi=100_000)
     latency_calls = integer("latency_calls", latency_calls, lo=0, hi=1_000_000)
     if name not in baseline_names() or name in list_agents():
         check_agent(name)  # its files, before torch and onnx load
     import torch
-
 
     onnx, ort = _modules()
     agent = load_controller(name, seed=seed, version="v1")

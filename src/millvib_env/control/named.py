@@ -18,7 +18,8 @@ from millvib_env.envs.config import CONFIG_ALIASES
 from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import Task, all_tasks, get_task
 
-__all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains"]
+__all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains",
+           "resolve_named_gains_for"]
 
 #: the fixed-gain baselines whose gains may be named (`control.registry.Baseline.named_gains`)
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
@@ -83,10 +84,18 @@ def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, ver
     named gain set replaced by that baseline's gains: in ``actions`` and in a mapping ``config``'s ``actions``.
     `task` defaults to the task whose config ``env_kwargs["config"]`` names, `version` to
     ``env_kwargs["env_version"]`` (else v0). Returns a new dict; `env_kwargs` is left as it was."""
+    if not has_named_gains(env_kwargs):
+        return dict(env_kwargs)
+    t = get_task(task) if task is not None else task_of_config(env_kwargs.get("config"))
+    return resolve_named_gains_for(env_kwargs, t, version)
+
+
+def resolve_named_gains_for(env_kwargs: Mapping, task: Task, version: str | None = None) -> dict:
+    """`resolve_named_gains` for a resolved `Task` (callers below the entry points)."""
     out = dict(env_kwargs)
     if not has_named_gains(out):
         return out
-    t = get_task(task) if task is not None else task_of_config(out.get("config"))
+    t = task
     version = version if version is not None else str(out.get("env_version") or "v0")
     if "actions" in out:
         out["actions"] = _resolve_actions(out["actions"], t, version)

@@ -80,7 +80,6 @@ class Reward:
         self.ema_gain = 1.0 - math.exp(-period_s / spec.vib_time_constant_s)
         from scipy import signal as ssig  # here, not at import: 1-2 s that a refused config should not wait for
 
-
         self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,
                                                     output="sos"))
         #: the filter's section states, per environment (n, sections, 2)

@@ -36,7 +36,7 @@ import numpy as np
 from millvib_env._checks import integer, real
 from millvib_env._paths import atomic_folder, write_text_atomic
 from millvib_env.control.factory import load_controller
-from millvib_env.control.named import resolve_named_gains
+from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import ObsStats
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.loop.kernel import K_UCTRL
@@ -74,9 +74,8 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
     baseline's, both computed from the same state."""
     import torch
 
-
-    venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains({"config": task.config, **env_kwargs},
-                                                                  task=task, version="v1"))
+    venv = EpisodeBatch(env_id, len(seeds), **resolve_named_gains_for({"config": task.config, **env_kwargs},
+                                                                      task, version="v1"))
     core = venv.core
     obs = venv.reset(seeds)
     for oracle in (teacher, baseline):
@@ -142,7 +141,6 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
-
 
     t = get_task(task)
     seed = integer("seed", seed, lo=0, hi=49)

@@ -26,20 +26,10 @@ from typing import cast
 
 import numpy as np
 
-from millvib_env.control.manifest import EVAL_CURVE
-from millvib_env.control.named import resolve_named_gains
-from millvib_env.training.hyperparams import load_hyperparams
-
-__all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
-
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
-from millvib_env.control.agents import (
-    AGENT_ENV_KEYS,
-    ALGOS,  # noqa: E402 (one list of algorithms)
-    SEED_FOLDER,
-    AgentPolicy,
-    algo_class,
-)
+from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class
+from millvib_env.control.manifest import EVAL_CURVE
+from millvib_env.control.named import resolve_named_gains, resolve_named_gains_for
 from millvib_env.control.normalization import STATS_FILE, save_obs_stats
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
@@ -48,6 +38,9 @@ from millvib_env.tasks import get_task
 from millvib_env.threads import serial_unless_set
 from millvib_env.training.benchmark import summarize
 from millvib_env.training.evaluate import run_episodes
+from millvib_env.training.hyperparams import load_hyperparams
+
+__all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
 
 #: the files of an agent folder (`--save-dir`), which a new training of it replaces
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
@@ -61,7 +54,6 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     it (best_dir/vecnormalize.npz), and can evaluate the starting policy (`evaluate_start`)."""
     from stable_baselines3.common.evaluation import evaluate_policy
     from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
-
 
     class FixedPlantsEval(base):
         best_timesteps = 0
@@ -291,7 +283,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = resolve_named_gains(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task,
+    env_kwargs = resolve_named_gains_for(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task,
                                      env_version(env_id))
     if the_task.name != "startup":
         env_kwargs["config"] = the_task.config
@@ -374,7 +366,6 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
     """Write the shipped policy and its observation statistics into the run folder: the final one, or
     (`select` "best") the best evaluated one; returns what was selected, or None for the final one."""
     from stable_baselines3.common.vec_env import VecNormalize
-
 
     normalized = isinstance(venv, VecNormalize)
     if normalized:

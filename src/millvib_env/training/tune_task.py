@@ -325,7 +325,6 @@ def merge_entries(shipped: dict, tuned: dict, *, force: bool = False) -> tuple[d
 def tune_from_cli(args) -> int:
     import yaml
 
-
     t = args.task  # resolved by the CLI
     if bool(args.out) == bool(args.write_config):
         raise ValueError("say where the result goes: --out FILE (a copy of the task's control config with the "
