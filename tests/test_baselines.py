@@ -140,8 +140,9 @@ def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tm
 
 
 def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
-    """envs/ imports nothing of the control layer and runs with configs/control/ gone: the tuned gains reach it
-    as numbers, resolved above it (control.named)."""
+    """envs/ imports nothing of the control layer, the training layer or the tasks (a `Task` carries its env config,
+    so tasks.py stands above envs/), and runs with configs/control/ gone: the tuned gains reach it as numbers,
+    resolved above it (control.named)."""
     import ast
     import shutil
     from pathlib import Path
@@ -154,7 +155,8 @@ def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
         for node in ast.walk(ast.parse(path.read_text())):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
-            assert not [n for n in names if n.startswith(("millvib_env.control", "millvib_env.training"))], path
+            assert not [n for n in names if n.startswith(("millvib_env.control", "millvib_env.training",
+                                                          "millvib_env.tasks"))], path
     root = tmp_path / "configs"
     shutil.copytree(config_dir(), root)
     shutil.rmtree(root / "control")
