@@ -46,7 +46,7 @@ from millvib_env.control.base import Controller
 from millvib_env.envs.batch import env_id_for
 from millvib_env.loop.kernel import K_UAPP, K_UPEND
 from millvib_env.params import MillParams
-from millvib_env.plant.model import IUI, IX, P_PA, P_PS, STATE_NAMES, supply_pressure
+from millvib_env.plant.model import IUI, IX, P_PA, STATE_NAMES, supply_ripple
 from millvib_env.threads import one_blas_thread
 
 if TYPE_CHECKING:
@@ -290,7 +290,7 @@ class MPCPolicy(Controller):
         e = np.empty((N + 1, 3))
         e[:, 0] = core.DFL[i, idx] + core._eccentricity(i, tm)  # the force steps and the eccentricity
         if p[P_PA] != 0.0:
-            e[:, 1] = [supply_pressure(tt, p) - p[P_PS] for tt in tm]
+            e[:, 1] = supply_ripple(tm, p)
         else:
             e[:, 1] = 0.0
         e[:, 2] = core.XD[i, np.minimum(idx + 1, last)] - m.xd0  # the set-point at the step's end

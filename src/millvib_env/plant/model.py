@@ -188,6 +188,16 @@ def supply_pressure(t, p):
 
 
 @njit(cache=True)
+def supply_ripple(times, p):
+    """ps(t) - ps (Pa) at each of `times`: `supply_pressure`'s pulsation over an array of times (a model's
+    horizon, `control.mpc`), in one compiled call instead of one per time."""
+    out = np.empty(times.shape[0])
+    for j in range(times.shape[0]):
+        out[j] = supply_pressure(times[j], p) - p[P_PS]
+    return out
+
+
+@njit(cache=True)
 def change_fraction(t, t0, duration):
     """Progress s in [0, 1] of a within-run plant change at time t: smoothstep of (t - t0)/duration."""
     if t <= t0:
