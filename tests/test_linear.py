@@ -55,3 +55,49 @@ def test_jacobian_shapes():
     params, gains = MillParams(), PIDGains(1e5, 1e-3)
     assert jacobian(params, gains, operating_point(params, gains)).shape == (3, 3)
     assert jacobian(params, gains, operating_point(params, gains, integral="settled")).shape == (4, 4)
+
+
+def _reference_root(fun, center, lo, hi):
+    """The operating point's root as it was found in Python: step out from `center` on a log scale until the
+    sign changes, then scipy's brentq with the same tolerances."""
+    from scipy import optimize
+
+    f0 = fun(center)
+    for step in np.logspace(-9, 0, 46) * (hi - lo):
+        for cand in (center - step, center + step):
+            if lo < cand < hi and np.sign(fun(cand)) != np.sign(f0):
+                a, b = sorted((center, cand))
+                return optimize.brentq(fun, a, b, xtol=1e-15, rtol=1e-13, maxiter=200)
+    return None
+
+
+@pytest.mark.parametrize("integral", ["frozen", "settled"])
+@pytest.mark.parametrize("friction", ["stick", "sliding"])
+def test_the_compiled_operating_point_is_scipys_brentq_on_the_same_residual(friction, integral):
+    """The compiled search (bracket and Brent's method) against scipy's brentq on the same residual, called
+    from Python: the roots agree within brentq's own tolerance (xtol + rtol |x|), on plants across the studied
+    ranges, and a plant without an operating point is refused in both."""
+    from millvib_env.analysis import linear
+    from millvib_env.plant.model import IUI, IX, IZ, NY, drive_vector
+
+    rng = np.random.default_rng(11)
+    found = 0
+    for _ in range(12):
+        params = MillParams(c1=float(10 ** rng.uniform(5.0, 6.4)), Ct=float(10 ** rng.uniform(-16, -9)))
+        gains = PIDGains(float(10 ** rng.uniform(4, 7)), 1e-3)
+        xd = float(rng.choice([0.0, 1e-3]))
+        p = linear._mean_pack(linear._ideal(params))
+        c = drive_vector(gains, xd=xd)
+        y = np.zeros(NY)
+        y[IX], y[IZ] = xd, 0.0 if friction == "stick" else params.fs / params.sigma0
+        which = IX if integral == "frozen" else IUI
+        center, lo, hi = (xd, -params.L1, params.L - params.L1) if integral == "frozen" else (0.0, -1e6, 1e6)
+        expected = _reference_root(lambda v: linear._flow_residual(v, which, y, p, c), center, lo, hi)
+        if expected is None:
+            with pytest.raises(RuntimeError, match="no operating point"):
+                operating_point(params, gains, xd, friction=friction, integral=integral)
+            continue
+        found += 1
+        root = operating_point(params, gains, xd, friction=friction, integral=integral).y[which]
+        assert abs(root - expected) <= 1e-15 + 1e-13 * abs(expected), (params.c1, params.Ct, gains.kp)
+    assert found >= 4

@@ -27,9 +27,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal, Sequence
 
 import numpy as np
+from numba import njit
 from scipy import optimize
 
 from millvib_env._checks import instance, integer, real, reals
@@ -62,23 +64,149 @@ class OperatingPoint:
         return float(self.y[IPL])
 
 
-def _rhs(params: MillParams, gains: PIDGains, xd: float):
-    p = pack(params.replace(pulse_amp=0.0))
-    c = drive_vector(gains, xd=xd)
-    return lambda y: rhs_vector(0.0, y, p, c)
+@lru_cache(maxsize=64)
+def _mean_pack(params: MillParams) -> np.ndarray:
+    """`pack` of `params` with the mean supply pressure (pulse_amp = 0), kept per plant: a critical-KP search
+    linearises one plant some 36 times. Shared: read it, never write it."""
+    return pack(params.replace(pulse_amp=0.0))
 
 
-def _bracket_root(fun, center: float, lo: float, hi: float) -> float:
-    """Root of fun in (lo, hi), bracketed by stepping out from `center` on a log scale."""
-    f0 = fun(center)
+@lru_cache(maxsize=64)
+def _ideal(params: MillParams) -> MillParams:
+    """The plant at rest: the spool sits at its command (no valve dynamics, no stroke limit)."""
+    return params.replace(valve_wn_hz=0.0, xv_max=math.inf)
+
+
+#: the bracket's steps out from its centre, as fractions of the interval (`_operating_root`)
+_BRACKET_STEPS = np.logspace(-9, 0, 46)
+#: brentq's tolerances and iteration bound for the operating point
+_ROOT_XTOL, _ROOT_RTOL, _ROOT_MAXITER = 1e-15, 1e-13, 200
+#: `_operating_root`'s outcomes
+_FOUND, _NO_BRACKET, _NAN, _NO_CONVERGENCE = 0, 1, 2, 3
+
+
+@njit(cache=True)
+def _flow_residual(value, which, y, p, c):
+    """dpL/dt of the loop at rest with state `which` of `y` set to `value` and pL balancing the force (Eq. 8):
+    zero at the operating point."""
+    yy = y.copy()
+    yy[which] = value
+    yy[IPL] = balanced_pressure(yy, p, c)
+    dy, aux = np.empty(NY), np.empty(NAUX)
+    plant_rhs(0.0, yy, p, c, dy, aux)
+    return dy[IPL]
+
+
+@njit(cache=True)
+def _sign(v):
+    """numpy's sign of a float: -1, 0, 1, or NaN for NaN."""
+    if v > 0.0:
+        return 1.0
+    if v < 0.0:
+        return -1.0
+    return v  # 0.0 or NaN
+
+
+@njit(cache=True)
+def _brent_step(xpre, xcur, xblk, fpre, fcur, fblk, spre, scur, sbis, delta):
+    """Brent's next (previous step, step): inverse interpolation where it is a good short step, else bisection."""
+    if abs(spre) > delta and abs(fcur) < abs(fpre):
+        if xpre == xblk:  # interpolate
+            stry = -fcur * (xcur - xpre) / (fcur - fpre)
+        else:  # extrapolate
+            dpre = (fpre - fcur) / (xpre - xcur)
+            dblk = (fblk - fcur) / (xblk - xcur)
+            stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+        if 2.0 * abs(stry) < min(abs(spre), 3.0 * abs(sbis) - delta):  # a good short step
+            return scur, stry
+    return sbis, sbis  # bisect
+
+
+@njit(cache=True)
+def _brentq(which, y, p, c, xa, xb, xtol, rtol, maxiter):
+    """Brent's method for the root of `_flow_residual` in [xa, xb], step for step as scipy's `optimize.brentq`
+    (its C loop, scipy/optimize/Zeros/brentq.c): (root, outcome)."""
+    xpre, xcur = xa, xb
+    xblk, fblk, spre, scur = 0.0, 0.0, 0.0, 0.0
+    fpre = _flow_residual(xpre, which, y, p, c)
+    if math.isnan(fpre):
+        return xpre, _NAN
+    fcur = _flow_residual(xcur, which, y, p, c)
+    if math.isnan(fcur):
+        return xcur, _NAN
+    if fpre == 0.0:
+        return xpre, _FOUND
+    if fcur == 0.0:
+        return xcur, _FOUND
+    for _ in range(maxiter):
+        if fpre * fcur < 0.0:
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if abs(fblk) < abs(fcur):
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = (xtol + rtol * abs(xcur)) / 2.0
+        sbis = (xblk - xcur) / 2.0
+        if fcur == 0.0 or abs(sbis) < delta:
+            return xcur, _FOUND
+        spre, scur = _brent_step(xpre, xcur, xblk, fpre, fcur, fblk, spre, scur, sbis, delta)
+        xpre, fpre = xcur, fcur
+        if abs(scur) > delta:
+            xcur += scur
+        else:
+            xcur += delta if sbis > 0.0 else -delta
+        fcur = _flow_residual(xcur, which, y, p, c)
+        if math.isnan(fcur):
+            return xcur, _NAN
+    return xcur, _NO_CONVERGENCE
+
+
+@njit(cache=True)
+def _operating_root(which, y, p, c, center, lo, hi, steps):
+    """The root of `_flow_residual` in (lo, hi), bracketed by stepping out from `center` on a log scale
+    (`steps`: fractions of the interval), then Brent's method: (root, outcome)."""
+    f0 = _flow_residual(center, which, y, p, c)
     if f0 == 0.0:
-        return center
-    for step in np.logspace(-9, 0, 46) * (hi - lo):
-        for cand in (center - step, center + step):
-            if lo < cand < hi and np.sign(fun(cand)) != np.sign(f0):
-                a, b = sorted((center, cand))
-                return optimize.brentq(fun, a, b, xtol=1e-15, rtol=1e-13, maxiter=200)
-    raise RuntimeError("no operating point found: the valve cannot hold the load against the leakage")
+        return center, _FOUND
+    s0 = _sign(f0)
+    for k in range(steps.shape[0]):
+        step = steps[k] * (hi - lo)
+        for side in range(2):
+            cand = center - step if side == 0 else center + step
+            if lo < cand < hi:
+                s = _sign(_flow_residual(cand, which, y, p, c))
+                if not s == s0:  # NaN on either side counts as a change, as numpy's signs compare
+                    a, b = (center, cand) if center < cand else (cand, center)
+                    return _brentq(which, y, p, c, a, b, _ROOT_XTOL, _ROOT_RTOL, _ROOT_MAXITER)
+    return 0.0, _NO_BRACKET
+
+
+@njit(cache=True)
+def _jacobian_at(y0, p, c, scale, sliding, stick):
+    """d f / d y of `plant_rhs` at y0 over all NY states: central differences, one-sided in v when `sliding`;
+    `stick` folds the bristle state into x (`_numerical_jacobian`)."""
+    J = np.zeros((NY, NY))
+    aux = np.empty(NAUX)
+    f0, fp, fm = np.empty(NY), np.empty(NY), np.empty(NY)
+    plant_rhs(0.0, y0, p, c, f0, aux)
+    for j in range(NY):
+        d = 1e-6 * scale[j]
+        yp = y0.copy()
+        yp[j] += d
+        plant_rhs(0.0, yp, p, c, fp, aux)
+        if sliding and j == IV:
+            for i in range(NY):
+                J[i, j] = (fp[i] - f0[i]) / d
+        else:
+            ym = y0.copy()
+            ym[j] -= d
+            plant_rhs(0.0, ym, p, c, fm, aux)
+            for i in range(NY):
+                J[i, j] = (fp[i] - fm[i]) / (2 * d)
+    if stick:
+        for i in range(NY):
+            J[i, IX] += J[i, IZ]
+    return J
 
 
 def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
@@ -95,27 +223,24 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
         raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
     if integral not in ("frozen", "settled"):
         raise ValueError(f"integral = {integral!r} is invalid: use 'frozen' or 'settled'")
-    ideal = params.replace(valve_wn_hz=0.0, xv_max=math.inf)  # at rest the spool sits at its command
-    f = _rhs(ideal, gains, xd)
-    p_mean = pack(ideal.replace(pulse_amp=0.0))
+    p_mean = _mean_pack(_ideal(params))  # at rest the spool sits at its command
     c = drive_vector(gains, xd=xd)
     y = np.zeros(NY)
     y[IX], y[IZ], y[IUI] = xd, 0.0 if friction == "stick" else params.fs / params.sigma0, uI
-
-    def at(value: float) -> np.ndarray:
-        yy = y.copy()
-        yy[IX if integral == "frozen" else IUI] = value
-        yy[IPL] = balanced_pressure(yy, p_mean, c)
-        return yy
-
-    def flow_residual(value: float) -> float:
-        return f(at(value))[IPL]
-
+    which = IX if integral == "frozen" else IUI
     if integral == "frozen":
-        root = _bracket_root(flow_residual, xd, -params.L1, params.L - params.L1)
+        root, outcome = _operating_root(which, y, p_mean, c, xd, -params.L1, params.L - params.L1, _BRACKET_STEPS)
     else:
-        root = _bracket_root(flow_residual, 0.0, -1e6, 1e6)
-    y_op = at(root)
+        root, outcome = _operating_root(which, y, p_mean, c, 0.0, -1e6, 1e6, _BRACKET_STEPS)
+    if outcome == _NO_BRACKET:
+        raise RuntimeError("no operating point found: the valve cannot hold the load against the leakage")
+    if outcome == _NAN:
+        raise ValueError(f"The function value at x={root} is NaN; solver cannot continue.")
+    if outcome == _NO_CONVERGENCE:
+        raise RuntimeError(f"Failed to converge after {_ROOT_MAXITER} iterations, value is {root}.")
+    y_op = y.copy()
+    y_op[which] = root
+    y_op[IPL] = balanced_pressure(y_op, p_mean, c)
     if not params.ideal_valve:
         aux = np.empty(NAUX)
         plant_rhs(0.0, y_op, p_mean, c, np.empty(NY), aux)
@@ -123,26 +248,12 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     return OperatingPoint(y=y_op, xd=xd, friction=friction, integral=integral)
 
 
-def _numerical_jacobian(f, y0: np.ndarray, scale: np.ndarray, friction: str) -> np.ndarray:
-    """d f / d y at y0 over all NY states (central differences; one-sided in v when sliding)."""
-    J = np.zeros((NY, NY))
-    f0 = f(y0)
-    for j in range(NY):
-        d = 1e-6 * scale[j]
-        if friction == "sliding" and j == IV:
-            yp = y0.copy()
-            yp[j] += d
-            J[:, j] = (f(yp) - f0) / d
-        else:
-            yp, ym = y0.copy(), y0.copy()
-            yp[j] += d
-            ym[j] -= d
-            J[:, j] = (f(yp) - f(ym)) / (2 * d)
-    if friction == "stick":
-        # stuck bristles move with the piston (dz/dt = dx/dt = v), so z - x is conserved: fold z
-        # into x (the bristle spring then acts on x) and drop the structural zero eigenvalue
-        J[:, IX] += J[:, IZ]
-    return J
+def _numerical_jacobian(p: np.ndarray, c: np.ndarray, y0: np.ndarray, scale: np.ndarray, friction: str) -> np.ndarray:
+    """d f / d y of `plant_rhs` (packed plant `p`, drive `c`) at y0 over all NY states (central differences;
+    one-sided in v when sliding). Stuck bristles move with the piston (dz/dt = dx/dt = v), so z - x is
+    conserved: z is folded into x (the bristle spring then acts on x), which drops the structural zero
+    eigenvalue."""
+    return _jacobian_at(y0, p, c, scale, friction == "sliding", friction == "stick")
 
 
 def _check_plant(params, *gains) -> None:
@@ -164,7 +275,8 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
     bristle state z is eliminated: when stuck it moves with x (folded into x), when sliding its
     row vanishes (saturated bristles).
     """
-    J = _numerical_jacobian(_rhs(params, gains, op.xd), op.y, state_scale(params), op.friction)
+    J = _numerical_jacobian(_mean_pack(params), drive_vector(gains, xd=op.xd), op.y, state_scale(params),
+                            op.friction)
     keep = [i for i in range(NY)
             if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))
             and not (i in VALVE_STATES and params.ideal_valve)]
@@ -236,12 +348,15 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
     u0 = float(y0[IUI])
     p = pack(mean)
 
+    def c_of(u: float) -> np.ndarray:
+        return drive_vector(PIDGains(0.0), xd=xd, u_ext=u, pid_on=False)
+
     def f_of(u: float):
-        c = drive_vector(PIDGains(0.0), xd=xd, u_ext=u, pid_on=False)
+        c = c_of(u)
         return lambda y: rhs_vector(0.0, y, p, c)
 
     scale = state_scale(params)
-    J = _numerical_jacobian(f_of(u0), y0, scale, friction)
+    J = _numerical_jacobian(p, c_of(u0), y0, scale, friction)
     secant = du is not None
     du = 1e-3 * max(abs(u0), 1.0) if du is None else real("du", du, lo=0.0, lo_open=True, hi=params.u_max)
     b = (f_of(u0 + du)(y0) - f_of(u0 - du)(y0)) / (2 * du)

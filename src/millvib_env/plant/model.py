@@ -382,6 +382,7 @@ def rated_flow(params: MillParams) -> float:
     return params.Cd * params.W * opening * math.sqrt(2.0 / params.rho) * math.sqrt(RATED_DROP_PA)
 
 
+@njit(cache=True)
 def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.0) -> float:
     """Chamber pressure pL that gives zero acceleration in state y (Eq. 8 is linear in pL).
 
