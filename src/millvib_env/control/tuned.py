@@ -15,7 +15,8 @@ from millvib_env.control.base import GainTable
 from millvib_env.envs.config import checked_gains
 from millvib_env.tasks import Task, get_task
 
-__all__ = ["control_config_path", "load_control_config", "control_entry", "entry_gains", "oracle_table"]
+__all__ = ["control_config_path", "load_control_config", "control_entry", "shared_from", "entry_gains",
+           "oracle_table"]
 
 
 def control_config_path(task: Task, version: str = "v0") -> Path:
@@ -48,13 +49,20 @@ def control_entry(task: Task, name: str, version: str = "v0", _via: tuple = ()) 
         raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
                          f"{task.name} --env-version {version} --only {name} --write-config)")
     entry = data[name]
-    if isinstance(entry, dict) and "from_task" in entry:
-        if not isinstance(entry["from_task"], str):
-            raise ValueError(f"{control_config_path(task, version)} {name}.from_task = {entry['from_task']!r:.60} "
-                             "is invalid: a task name")
-        # the file names a task: resolved here, where the name enters
-        return control_entry(get_task(entry["from_task"]), name, version, _via + (task.name,))
+    source = shared_from(entry, f"{control_config_path(task, version)} {name}")
+    if source is not None:
+        return control_entry(source, name, version, _via + (task.name,))
     return entry
+
+
+def shared_from(entry: Any, where: str) -> Task | None:
+    """The task whose entry an entry shares (``from_task: NAME``, as `millvib tune --from-task` writes it), or None
+    for an entry of its own: the one place where a config file's task name becomes a Task."""
+    if not isinstance(entry, dict) or "from_task" not in entry:
+        return None
+    if not isinstance(entry["from_task"], str):
+        raise ValueError(f"{where}.from_task = {entry['from_task']!r:.60} is invalid: a task name")
+    return get_task(entry["from_task"])
 
 
 def entry_gains(task: Task, name: str, entry: dict, version: str = "v0") -> list[float]:

@@ -139,15 +139,13 @@ def distinct_plant_scenarios() -> list[str]:
     return names
 
 
-def episode_records(name: str, task: str | Task, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
+def episode_records(name: str, task: Task, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
                     env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[EpisodeRecord]:
-    """One controller's episodes on `seeds` (a job of a distributed benchmark or sweep); for an agent,
-    its training seed `agent_seed` (default: the lowest it ships), recorded as `agent_seed`. A baseline
-    runs in `env_id`'s version; an agent in its own. A job names its task (it may cross to another process):
-    it is resolved here."""
-    t = get_task(task)
-    ctrl = load_controller(name, t, seed=agent_seed, version=env_version(env_id))
-    return _run(ctrl, seeds, t, env_kwargs)
+    """One controller's episodes on `seeds` of `task` (a job of a distributed benchmark or sweep: the Task
+    crosses to the worker as it is); for an agent, its training seed `agent_seed` (default: the lowest it
+    ships), recorded as `agent_seed`. A baseline runs in `env_id`'s version; an agent in its own."""
+    ctrl = load_controller(name, task, seed=agent_seed, version=env_version(env_id))
+    return _run(ctrl, seeds, task, env_kwargs)
 
 
 def _run(ctrl: Controller, seeds, task: Task, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
@@ -197,7 +195,7 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, e
     records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None:
 
-        jobs = [{"name": n, "task": task.name, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
+        jobs = [{"name": n, "task": task, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
                 for n, s in units for i in range(0, len(plants), CHUNK)]
         parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {task.name} (ray)")
         for job, part in zip(jobs, parts):

@@ -68,7 +68,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup",
     t.check_heldout(seeds)
     for name in controllers:
         load_controller(name, t, version=env_version)  # a bad name fails here, before any job starts
-    jobs = [{"name": n, "task": t.name, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize},
+    jobs = [{"name": n, "task": t, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize},
              "env_id": env_id}
             for n in controllers for i in range(0, plants, CHUNK)]
     parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,

@@ -38,6 +38,7 @@ from millvib_env._paths import check_output, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.control.factory import control_config_path, control_entry, oracle_table
+from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.envs.config import cached_env_config, load_env_config
 from millvib_env.tasks import Task, get_task
@@ -290,8 +291,9 @@ def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
 
 def _table(entry: dict, version: str = "v0"):
 
-    if "from_task" in entry:  # the entry names a task: resolved where the name enters
-        return oracle_table(get_task(entry["from_task"]), version=version)
+    source = shared_from(entry, "pid-oracle")
+    if source is not None:
+        return oracle_table(source, version=version)
     return GainTable(entry["c1_grid"], entry["ct_grid"], np.array(entry["log10_gains"]))
 
 
