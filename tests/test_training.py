@@ -131,6 +131,35 @@ def test_shipped_agents_load_and_run(name):
     assert len(recs) == 1 and np.isfinite(recs[0]["cost"])
 
 
+@pytest.mark.parametrize("name", list_agents())
+def test_an_agents_deterministic_actions_are_sb3s_predict(name):
+    """`AgentPolicy.predict` runs PPO's and SAC's policies without SB3's per-call wrapping (`deterministic_actor`):
+    the same torch operations on the same inputs as SB3's own `predict`, batched and for one observation, on
+    observations beyond the training range too. Equal within 1e-5 of the action's unit range: torch's float32
+    matrix products are not bit-reproducible from call to call (here the first call of a process differs from
+    the next ones by up to 3e-6 in about half the processes, in SB3's predict alone)."""
+    agent = load_controller(name, seed=agent_seeds(name)[0])
+    if agent.recurrent:
+        assert agent._act is None  # the LSTM's state goes through SB3's predict
+        return
+    assert agent._act is not None
+    shape = agent.model.observation_space.shape
+    obs = (np.random.default_rng(3).standard_normal((16, *shape)) * 3.0).astype(np.float32)
+    normalized = agent.normalize(obs)
+    close = dict(rtol=0.0, atol=1e-5)
+    np.testing.assert_allclose(agent.predict(obs)[0], agent.model.predict(normalized, deterministic=True)[0], **close)
+    one = agent.predict(obs[5])[0]
+    assert one.shape == agent.model.action_space.shape
+    np.testing.assert_allclose(one, agent.model.predict(normalized[5], deterministic=True)[0], **close)
+    net = getattr(agent.model.policy, "action_net", None)
+    if net is not None:  # PPO: means beyond the action space are clipped as SB3 clips them
+        import torch
+
+        with torch.no_grad():
+            net.bias += 100.0
+        assert np.all(agent.predict(obs)[0] == agent.model.action_space.high)
+
+
 def test_default_benchmark_covers_the_shipped_agents():
     agents = list_agents()
     assert len(agents) >= 2, "the PPO and SAC gain schedulers are shipped under agents/"

@@ -23,8 +23,8 @@ from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task
 from millvib_env.threads import one_xla_thread
 
-__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
-           "list_agents", "agent_folder", "agent_seeds"]
+__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "deterministic_actor", "AGENT_ENV_KEYS", "SEED_FOLDER",
+           "agent_seed_folders", "list_agents", "agent_folder", "agent_seeds"]
 
 
 #: the algorithms an agent may be trained with (`millvib train --algo`)
@@ -184,6 +184,7 @@ class AgentPolicy(Controller):
         if normalize.strip() not in ("None", "False", "", "{}"):
 
             self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
+        self._act = None if self.recurrent or self.backend != "sb3" else deterministic_actor(self.model.policy)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return obs if self.obs_stats is None else self.obs_stats.normalize(obs)
@@ -193,6 +194,12 @@ class AgentPolicy(Controller):
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = self.normalize(np.asarray(observation, dtype=np.float32))
+        if deterministic and self._act is not None:
+            shape = self.model.observation_space.shape
+            if obs.shape == shape:
+                return self._act(obs[None])[0], state
+            if obs.shape[1:] == shape:
+                return self._act(obs), state
         if self.recurrent:
             if state is None and episode_start is None and obs.ndim == 1:
                 # a plain Gymnasium loop (ctrl.make_env()): the agent keeps its own LSTM state
@@ -204,6 +211,45 @@ class AgentPolicy(Controller):
                 return action, None
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
         return self.model.predict(obs, deterministic=deterministic)
+
+
+def deterministic_actor(policy):
+    """SB3's ``policy.predict(obs, deterministic=True)`` for a batch of observations, as a function, for the two
+    policies the shipped agents have: PPO's (a diagonal Gaussian: its mean, clipped to the action space) and SAC's
+    (a squashed Gaussian: tanh of its mean, rescaled). The same torch operations in the same order, without what
+    `predict` does around them at every call (setting the training mode of every module, building the action
+    distribution), in less than half the time at batch 8; a test compares the actions with `predict`'s. None for
+    any other policy, which `predict` then runs as SB3 does."""
+    import torch as th
+    from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution
+    from stable_baselines3.common.policies import ActorCriticPolicy, BaseModel
+    from stable_baselines3.sac.policies import SACPolicy
+
+    if type(policy) is ActorCriticPolicy and type(policy.action_dist) is DiagGaussianDistribution \
+            and not policy.use_sde and not policy.squash_output:
+        def mean(obs):
+            features = BaseModel.extract_features(policy, obs, policy.pi_features_extractor)  # as get_distribution
+            return policy.action_net(policy.mlp_extractor.forward_actor(features))
+    elif type(policy) is SACPolicy and type(policy.actor.action_dist) is SquashedDiagGaussianDistribution \
+            and not policy.actor.use_sde and policy.squash_output:
+        actor = policy.actor
+
+        def mean(obs):
+            return th.tanh(actor.mu(actor.latent_pi(actor.extract_features(obs, actor.features_extractor))))
+    else:
+        return None
+    policy.set_training_mode(False)
+    space = policy.action_space
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        with th.no_grad():
+            actions = mean(th.as_tensor(np.array(obs), device=policy.device))
+        actions = actions.cpu().numpy().reshape((-1, *space.shape))
+        if policy.squash_output:
+            return policy.unscale_action(actions)
+        return np.clip(actions, space.low, space.high)
+
+    return act
 
 
 #: the folder of training seed s of a multi-seed agent: <agent>/seed-<s>/
