@@ -185,3 +185,31 @@ def test_episode_records_and_the_csv_columns_have_one_home():
         rec = run_episodes(load_controller(name), [20000])[0]
         assert set(rec) <= set(RECORD_FIELDS), set(rec) - set(RECORD_FIELDS)
     assert set(RANGES) <= set(RECORD_FIELDS)  # a sweep's drawn parameters are record columns
+
+
+def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
+    """A `Controller` object in the list (here a fixed-gain PID with gains of one's own): its records are its own
+    episodes on the benchmark's plants, it is compared with the reference like any other and written to the JSON;
+    a taken name, an environment of another version and Ray are refused in one line."""
+    from millvib_env import PIDGains
+    from millvib_env.control.policies import FixedGainPolicy
+    from millvib_env.training.benchmark import format_table
+    from millvib_env.training.evaluate import run_episodes
+
+    mine = FixedGainPolicy("my-pid", PIDGains(1.5e6, 2e3, 40.0))
+    mine.env_id = "MillVib-GainSchedule-v1"
+    kw = dict(task="startup", episodes=3, scenarios=False, progress=False)
+    result = run_benchmark(["pid-robust", mine], **kw)
+    assert "pid-pf-robust" in result["controllers"]["my-pid"]["paired"]
+    own = run_episodes(mine, result["plants"], task="startup")
+    assert [r["cost"] for r in result["records"]["my-pid"]] == [r["cost"] for r in own]
+    assert "my-pid" in format_table(result) and "my-pid" in public_json(result)["controllers"]
+    taken = FixedGainPolicy("pid-robust", PIDGains(1e6, 1.0))
+    taken.env_id = "MillVib-GainSchedule-v1"
+    for controllers, extra, message in (([taken], {}, r"controllers\[0\]\.name = 'pid-robust' is invalid"),
+                                        ([FixedGainPolicy("my-v0", PIDGains(1e6, 1.0))], {}, "version v1"),
+                                        ([mine], {"ray": ""}, "ray = '' is invalid"),
+                                        (["pid-robust", 3], {}, r"controllers\[1\] = 3 is invalid")):
+        with pytest.raises(ValueError, match=message) as err:
+            run_benchmark(controllers, **{**kw, **extra})
+        assert "\n" not in str(err.value)

@@ -27,7 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from millvib_env._checks import strings
+from millvib_env._checks import shown
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
@@ -161,14 +161,19 @@ def _run(ctrl: Controller, seeds, task: Task, env_kwargs: dict | None = None, **
 CHUNK = 50
 
 
-def _load_units(names: list[str], task: Task, all_seeds: bool,
-                version: str, progress: bool = False) -> tuple[list[tuple[str, int | None]], dict]:
+def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, progress: bool = False,
+                own: Mapping[str, Controller] | None = None) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
-    every agent on its lowest seed, or on every seed it ships (`all_seeds`)."""
+    every agent on its lowest seed, or on every seed it ships (`all_seeds`); a user's `own` controllers as
+    they are."""
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
     for n in tqdm(names, desc=f"benchmark {task.name}: loading", unit="controller", disable=not progress, leave=False):
+        if own and n in own:
+            units.append((n, None))
+            loaded[(n, None)] = own[n]
+            continue
         first = load_controller(n, task, version=version)
         if first.card is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
@@ -178,6 +183,35 @@ def _load_units(names: list[str], task: Task, all_seeds: bool,
             units.append((n, None))
             loaded[(n, None)] = first
     return units, loaded
+
+
+def _own_controllers(controllers: Any, version: str) -> tuple[list[str], dict[str, Controller]]:
+    """`controllers` as names (the groups expanded, `_expand_groups`) and a user's `Controller` objects among
+    them, by their names (which must be new: no baseline's or shipped agent's name, each once); each of those runs
+    in its own environment, which must be of the benchmark's version."""
+    if isinstance(controllers, (str, bytes)) or not isinstance(controllers, (list, tuple)) or not controllers:
+        raise ValueError(f"controllers = {shown(controllers)} is invalid: a list of controller names (strings) or "
+                         "Controller objects")
+    own: dict[str, Controller] = {}
+    names: list[str] = []
+    taken = set(baseline_names()) | set(list_agents())
+    for k, c in enumerate(controllers):
+        if isinstance(c, Controller):
+            if not isinstance(c.name, str) or not c.name or c.name in taken or c.name in own:
+                raise ValueError(f"controllers[{k}].name = {shown(c.name)} is invalid: a new name for your controller "
+                                 "(not a baseline's or a shipped agent's, each once)")
+            if env_version(c.env_id) != version:
+                raise ValueError(f"controllers[{k}] ({c.name}) runs in {c.env_id}, not in environment version "
+                                 f"{version}: set its env_id to {env_id_for('gain', version)} or "
+                                 f"{env_id_for('valve', version)}, or benchmark in {env_version(c.env_id)}")
+            own[c.name] = c
+            names.append(c.name)
+        elif isinstance(c, str) and c:
+            names.append(c)
+        else:
+            raise ValueError(f"controllers[{k}] = {shown(c)} is invalid: a controller name (a string) or a "
+                             "Controller object")
+    return _expand_groups(names, version), own
 
 
 def _expand_groups(names: Sequence[str], version: str) -> list[str]:
@@ -215,7 +249,7 @@ def _scenario_records(ctrl, plant: int, task: Task) -> dict[str, dict]:
     return out
 
 
-def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "startup",
+def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
                   all_seeds: bool = False, reference: str | None = None) -> dict:
@@ -229,7 +263,10 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
     `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
     (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
-    controllers are the baselines and the agents trained in that version."""
+    controllers are the baselines and the agents trained in that version. A controller of your own (a
+    `control.base.Controller` with a new `name`, its `env_id`, `env_kwargs` and `predict`) may stand in the list
+    beside the names: it runs in its own environment, in this process (not with `ray`), and is compared as any
+    other (docs/benchmark.md)."""
 
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
@@ -238,15 +275,18 @@ def run_benchmark(controllers: Sequence[str] | None = None, *, task: str = "star
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
-    names = _expand_groups(strings("controllers", controllers, "controller names"), env_version) \
-        if controllers is not None else baseline_names(env_version) + list_agents(t.name, env_version)
+    names, own = _own_controllers(controllers, env_version) if controllers is not None else \
+        (baseline_names(env_version) + list_agents(t.name, env_version), {})
+    if own and ray is not None:
+        raise ValueError(f"ray = {ray!r} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
+                         "in this process; give ray=None")
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
         load_controller(reference, t, version=env_version)  # an unknown name fails here, in one line
         names = [reference] + names
-    units, loaded = _load_units(names, t, all_seeds, env_version, progress)
+    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     cfg = t.env_config(env_version)
