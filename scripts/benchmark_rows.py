@@ -4,9 +4,9 @@ same held-out plants (every seed of an agent), and what one call of an agent's `
     MILLVIB_NUM_THREADS=1 python scripts/benchmark_rows.py [--task rolling] [--episodes 8] [--env-version v1]
 
 Wall seconds per controller (a warm-up run first: compilation, imports), then microseconds per call of the first
-XX
-`model.predict` on a batch of `--episodes` observations. The numbers are this machine's, under whatever else it
-is doing: a benchmark, never a test.
+agent's deterministic actions (`control.agents.deterministic_actor`, what `AgentPolicy.predict` runs) and of
+SB3's `model.predict`, on the same batch of `--episodes` normalised observations. The numbers are this machine's,
+under whatever else it is doing: a benchmark, never a test.
 """
 import argparse
 import time
