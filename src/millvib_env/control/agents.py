@@ -218,7 +218,7 @@ def deterministic_actor(policy):
     policies the shipped agents have: PPO's (a diagonal Gaussian: its mean, clipped to the action space) and SAC's
     (a squashed Gaussian: tanh of its mean, rescaled). The same torch operations in the same order, without what
     `predict` does around them at every call (setting the training mode of every module, building the action
-    distribution), in less than half the time at batch 8; a test compares the actions with `predict`'s. None for
+    distribution), in about half the time at batch 8; a test compares the actions with `predict`'s. None for
     any other policy, which `predict` then runs as SB3 does."""
     import torch as th
     from stable_baselines3.common.distributions import DiagGaussianDistribution, SquashedDiagGaussianDistribution
