@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from millvib_env.control.named import resolve_named_gains
-from millvib_env.envs import base, vector
+from millvib_env.envs import environments, vector
 
 __all__ = ["GainScheduleEnv", "ValveEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]
 
@@ -34,7 +34,7 @@ def _entry(cls: type, vector_env: bool = False) -> Callable:
     return make
 
 
-GainScheduleEnv = _entry(base.GainScheduleEnv)
-ValveEnv = _entry(base.ValveEnv)
+GainScheduleEnv = _entry(environments.GainScheduleEnv)
+ValveEnv = _entry(environments.ValveEnv)
 GainScheduleVectorEnv = _entry(vector.GainScheduleVectorEnv, vector_env=True)
 ValveVectorEnv = _entry(vector.ValveVectorEnv, vector_env=True)

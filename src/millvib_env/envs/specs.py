@@ -31,7 +31,7 @@ class EnvSpec:
 
     @property
     def entry_point(self) -> str:
-        """Gymnasium's entry point (`_entry`: named gain sets resolved, then `envs.base`)."""
+        """Gymnasium's entry point (`_entry`: named gain sets resolved, then `envs.environments`)."""
         return f"millvib_env._entry:{self.name}Env"
 
     @property
