@@ -47,3 +47,29 @@ def test_a_baseline_or_a_bad_path_is_refused_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0]
     assert not list(tmp_path.iterdir())
+
+
+def test_an_sbx_sac_is_sb3s_sac_weight_for_weight():
+    """sbx's SAC copied into SB3's (`control.sbx_to_sb3`): the deterministic actions and both critics' values agree
+    within float32 rounding (JAX and torch sum in their own order), on observations beyond the usual range."""
+    pytest.importorskip("sbx")
+    import torch
+    from sbx import SAC
+
+    from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
+    from millvib_env.envs.vec_env import make_vec_env
+
+    venv = make_vec_env("MillVib-GainSchedule-v1", 2, seed=0)
+    model = SAC("MlpPolicy", venv, seed=0, policy_kwargs={"net_arch": [32, 16]})
+    sb3 = sb3_sac_from_sbx(model)
+    rng = np.random.default_rng(0)
+    obs = (rng.standard_normal((64, *venv.observation_space.shape)) * 3.0).astype(np.float32)
+    act = rng.uniform(-1.0, 1.0, (64, *venv.action_space.shape)).astype(np.float32)
+    np.testing.assert_allclose(sb3.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0],
+                               rtol=0.0, atol=1e-5)
+    with torch.no_grad():
+        q_sb3 = torch.stack(sb3.critic(torch.as_tensor(obs), torch.as_tensor(act))).numpy()
+    q_sbx = np.asarray(model.policy.qf.apply(model.policy.qf_state.params, obs, act))
+    np.testing.assert_allclose(q_sb3, q_sbx, rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="an sbx SAC"):
+        sb3_sac_from_sbx(sb3)

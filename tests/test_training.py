@@ -1,4 +1,5 @@
 """Controllers, agent training (smoke) and the benchmark."""
+import importlib.util
 import json
 
 import numpy as np
@@ -78,6 +79,11 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
                                                           else "stable_baselines3", "sbx": "sbx"}[backend]
     recs = run_episodes(agent, [0, 1])
     assert all(np.isfinite(r["cost"]) for r in recs)
+    if backend == "sbx" and algo == "sac" and importlib.util.find_spec("onnxruntime") is not None:
+        from millvib_env.control.export import EXPORT_TOLERANCE, export_agent  # JAX's SAC leaves Python too
+
+        summary = export_agent(str(tmp_path / "agent"), tmp_path / "sac.onnx", check_steps=50, latency_calls=0)
+        assert summary["max_abs_difference"] <= EXPORT_TOLERANCE
     if backend == "sbx" and algo == "ppo":
         return  # resuming is the same code for both backends (checkpoints, VecNormalize, the card); once per backend
     resumed = train(algo, seed=3, n_timesteps=512, resume=True, **kw)

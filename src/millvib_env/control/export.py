@@ -11,8 +11,9 @@ observations of a real episode of the agent's task and every action must equal t
 1e-5 (float32 rounding); the time per call at batch 1 is measured beside it (a figure of this machine,
 printed, never asserted).
 
-Recurrent agents (RecurrentPPO) and JAX agents (sbx) are not exported: their state or their framework needs
-another path. ``pip install -e '.[export]'`` installs onnx and onnxruntime.
+A SAC trained with sbx (JAX) is exported through the same SB3 networks, weight for weight (`control.sbx_to_sb3`),
+and checked against its own sbx actions. Recurrent agents (RecurrentPPO) and sbx's PPO are not exported: their
+state or their framework needs another path. ``pip install -e '.[export]'`` installs onnx and onnxruntime.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from millvib_env._paths import atomic_path
 from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import baseline_names
+from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.training.evaluate import env_kwargs_for
 
@@ -51,12 +53,13 @@ def _modules():
 
 
 def _deployed(agent):
-    """A torch module: raw observation -> normalised -> actor -> clipped action (what `predict` does)."""
+    """A torch module: raw observation -> normalised -> actor -> clipped action (what `predict` does); an sbx SAC's
+    networks as SB3's (`sb3_sac_from_sbx`)."""
     import torch
 
     stats = agent.obs_stats
     algo = str(agent.card["algo"]).lower()
-    policy = agent.model.policy
+    policy = sb3_sac_from_sbx(agent.model).policy if agent.backend == "sbx" else agent.model.policy
 
     class Deployed(torch.nn.Module):
         def __init__(self):
@@ -136,9 +139,9 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     if not isinstance(agent, AgentPolicy):
         raise ValueError(f"{name!r} is a baseline, not a trained agent: export takes an agent name or folder")
     algo = str(agent.card["algo"]).lower()
-    if agent.recurrent or agent.backend != "sb3" or algo not in ("ppo", "sac"):
-        raise ValueError(f"agent {agent.name!r} ({algo}, {agent.backend}) cannot be exported: export covers SB3 "
-                         "PPO and SAC agents (a recurrent policy's state and a JAX policy need another path)")
+    if agent.recurrent or algo not in ("ppo", "sac") or (agent.backend != "sb3" and algo != "sac"):
+        raise ValueError(f"agent {agent.name!r} ({algo}, {agent.backend}) cannot be exported: export covers SB3's "
+                         "PPO and SAC and sbx's SAC (a recurrent policy's state and sbx's PPO need another path)")
     obs, core = _episode_observations(agent, check_steps)
     module = _deployed(agent)
     dim = obs.shape[1]
