@@ -75,19 +75,40 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
         assert (tmp_path / "agent" / name).exists()
     agent = load_controller(str(tmp_path / "agent"))
     assert agent.backend == backend
+    # an sbx SAC is saved as SB3's SAC with its weights: it loads and runs without JAX
+    fmt = "sb3" if (backend, algo) == ("sbx", "sac") else backend
+    assert card["model_format"] == agent.model_format == fmt
     assert type(agent.model).__module__.split(".")[0] == {"sb3": "sb3_contrib" if algo == "recurrentppo"
-                                                          else "stable_baselines3", "sbx": "sbx"}[backend]
+                                                          else "stable_baselines3", "sbx": "sbx"}[fmt]
     recs = run_episodes(agent, [0, 1])
     assert all(np.isfinite(r["cost"]) for r in recs)
-    if backend == "sbx" and algo == "sac" and importlib.util.find_spec("onnxruntime") is not None:
-        from millvib_env.control.export import EXPORT_TOLERANCE, export_agent  # JAX's SAC leaves Python too
+    if (backend, algo) == ("sbx", "sac"):
+        from stable_baselines3 import SAC  # SB3's own loader: the plain recipe
 
-        summary = export_agent(str(tmp_path / "agent"), tmp_path / "sac.onnx", check_steps=50, latency_calls=0)
-        assert summary["max_abs_difference"] <= EXPORT_TOLERANCE
+        plain = SAC.load(tmp_path / "agent" / "model.zip", device="cpu")
+        obs = np.random.default_rng(0).standard_normal((4, *plain.observation_space.shape)).astype(np.float32)
+        np.testing.assert_allclose(plain.predict(obs, deterministic=True)[0],  # torch's float32 call-to-call rounding
+                                   agent.model.predict(obs, deterministic=True)[0], rtol=0.0, atol=1e-5)
+        if importlib.util.find_spec("onnxruntime") is not None:  # and it leaves Python as any SB3 agent
+            from millvib_env.control.export import EXPORT_TOLERANCE, export_agent
+
+            summary = export_agent(str(tmp_path / "agent"), tmp_path / "sac.onnx", check_steps=50, latency_calls=0)
+            assert summary["max_abs_difference"] <= EXPORT_TOLERANCE
     if backend == "sbx" and algo == "ppo":
         return  # resuming is the same code for both backends (checkpoints, VecNormalize, the card); once per backend
     resumed = train(algo, seed=3, n_timesteps=512, resume=True, **kw)
     assert resumed["n_timesteps"] >= 512
+
+
+def test_sac_trains_with_sbx_by_default_where_it_is_installed_and_everything_else_with_sb3():
+    import importlib.util
+
+    from millvib_env.control.agents import resolved_backend
+
+    have_sbx = importlib.util.find_spec("sbx") is not None
+    assert resolved_backend("sac") == ("sbx" if have_sbx else "sb3")
+    assert resolved_backend("ppo") == resolved_backend("recurrentppo") == "sb3"
+    assert resolved_backend("sac", "sb3") == "sb3" and resolved_backend("ppo", "sbx") == "sbx"
 
 
 @pytest.mark.parametrize("backend", ["sb3", pytest.param("sbx", marks=pytest.mark.slow)])

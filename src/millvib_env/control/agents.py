@@ -6,6 +6,7 @@ needs a path) and `AgentPolicy`, which runs one with SB3's `predict`.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 from pathlib import Path
@@ -23,8 +24,8 @@ from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task
 from millvib_env.threads import one_xla_thread
 
-__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "deterministic_actor", "AGENT_ENV_KEYS", "SEED_FOLDER",
-           "agent_seed_folders", "list_agents", "agent_folder", "agent_seeds"]
+__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "resolved_backend", "deterministic_actor",
+           "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders", "list_agents", "agent_folder", "agent_seeds"]
 
 
 #: the algorithms an agent may be trained with (`millvib train --algo`)
@@ -32,6 +33,15 @@ ALGOS = ("ppo", "sac", "recurrentppo")
 #: the learner libraries (`millvib train --backend`): Stable-Baselines3 (PyTorch, the default) and sbx,
 #: its JAX port (`pip install -e '.[sbx]'`), for PPO and SAC; a model card records its backend
 BACKENDS = {"sb3": ALGOS, "sbx": ("ppo", "sac")}
+
+
+def resolved_backend(algo: str, backend: str = "auto") -> str:
+    """The learner library `millvib train` uses: `backend` as given, or for "auto" (the default) sbx for SAC where
+    it is installed (about twice SB3's speed, docs/performance.md) and SB3 otherwise. A SAC trained with sbx is
+    saved in SB3's format (`control.sbx_to_sb3`), so it loads, runs and exports without JAX."""
+    if backend == "auto":
+        return "sbx" if str(algo).lower() == "sac" and importlib.util.find_spec("sbx") is not None else "sb3"
+    return backend
 
 
 def algo_class(algo: str, backend: str = "sb3"):
@@ -165,8 +175,9 @@ class AgentPolicy(Controller):
         self.env_kwargs = resolve_named_gains_for(self.card.get("env_kwargs", {}), self.task,
                                                   version=env_version(self.env_id))
         algo = str(self.card["algo"]).lower()
-        self.backend = str(self.card.get("backend", "sb3"))
-        cls = algo_class(algo, self.backend)
+        self.backend = str(self.card.get("backend", "sb3"))  # the library it was trained with
+        self.model_format = str(self.card.get("model_format", self.backend))  # the library model.zip is for
+        cls = algo_class(algo, self.model_format)
         self.recurrent = algo == "recurrentppo"
         model_path = folder / "model.zip"
         if not model_path.is_file():
@@ -184,7 +195,7 @@ class AgentPolicy(Controller):
         if normalize.strip() not in ("None", "False", "", "{}"):
 
             self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
-        self._act = None if self.recurrent or self.backend != "sb3" else deterministic_actor(self.model.policy)
+        self._act = None if self.recurrent or self.model_format != "sb3" else deterministic_actor(self.model.policy)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return obs if self.obs_stats is None else self.obs_stats.normalize(obs)

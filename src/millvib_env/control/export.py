@@ -59,7 +59,7 @@ def _deployed(agent):
 
     stats = agent.obs_stats
     algo = str(agent.card["algo"]).lower()
-    policy = sb3_sac_from_sbx(agent.model).policy if agent.backend == "sbx" else agent.model.policy
+    policy = sb3_sac_from_sbx(agent.model).policy if agent.model_format == "sbx" else agent.model.policy
 
     class Deployed(torch.nn.Module):
         def __init__(self):
@@ -139,7 +139,7 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     if not isinstance(agent, AgentPolicy):
         raise ValueError(f"{name!r} is a baseline, not a trained agent: export takes an agent name or folder")
     algo = str(agent.card["algo"]).lower()
-    if agent.recurrent or algo not in ("ppo", "sac") or (agent.backend != "sb3" and algo != "sac"):
+    if agent.recurrent or algo not in ("ppo", "sac") or (agent.model_format != "sb3" and algo != "sac"):
         raise ValueError(f"agent {agent.name!r} ({algo}, {agent.backend}) cannot be exported: export covers SB3's "
                          "PPO and SAC and sbx's SAC (a recurrent policy's state and sbx's PPO need another path)")
     obs, core = _episode_observations(agent, check_steps)

@@ -43,9 +43,10 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="ship the final policy (default), the best one on the fixed evaluation plants, the "
                         "starting policy included (best), or the best one once training started (trained: never "
                         "the untrained policy); --n-eval-episodes plants, the same every evaluation")
-    p.add_argument("--backend", choices=["sb3", "sbx"], default="sb3",
-                   help="learner library: sb3 (Stable-Baselines3, PyTorch; default) or sbx (its JAX port, PPO and "
-                        "SAC, same hyperparameter files; needs pip install -e '.[sbx]')")
+    p.add_argument("--backend", choices=["auto", "sb3", "sbx"], default="auto",
+                   help="learner library: sb3 (Stable-Baselines3, PyTorch) or sbx (its JAX port, PPO and SAC, same "
+                        "hyperparameter files; pip install -e '.[sbx]'); auto (default): sbx for SAC where it is "
+                        "installed, else sb3. A SAC trained with sbx is saved in SB3's format (it loads without JAX)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=func)
 

@@ -27,10 +27,11 @@ from typing import cast
 import numpy as np
 
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
-from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class
+from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
 from millvib_env.control.named import resolve_named_gains, resolve_named_gains_for
 from millvib_env.control.normalization import STATS_FILE, save_obs_stats
+from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
@@ -253,16 +254,17 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
           progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last",
-          backend: str = "sb3") -> dict:
+          backend: str = "auto") -> dict:
     """Train one agent; returns its model card (also written to the run folder).
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
     time), so the evaluation curve compares policies, not draws. `select`: ship the final policy
     ("last"), the best evaluated one ("best", the starting policy included, with the observation
     statistics of its moment) or the best evaluated one after training started ("trained": never the
-    starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" (default)
-    or "sbx" (JAX; PPO and SAC), with the same hyperparameter files; the card records it and
-    `load_controller` loads with it."""
+    starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" or "sbx"
+    (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`resolved_backend`: sbx for SAC where it
+    is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
+    card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX."""
     if select not in ("last", "best", "trained"):
         raise ValueError(f"--select {select!r} is invalid: 'last', 'best' or 'trained'")
     import torch
@@ -272,7 +274,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     from millvib_env.envs.vec_env import make_vec_env
 
     algo = algo.lower()
-
+    backend = resolved_backend(algo, backend)
     cls = algo_class(algo, backend)
     the_task = get_task(task)
     _check_id_runs_task(env_id, the_task)
@@ -325,10 +327,12 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
     selected = _keep_policy(run, model, venv, eval_cb, select)
+    model_format = _portable_model(run, cls, algo, backend)
     evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
-            "task": the_task.name, "backend": backend, "env_kwargs": env_kwargs, "seed": seed,
+            "task": the_task.name, "backend": backend, "model_format": model_format, "env_kwargs": env_kwargs,
+            "seed": seed,
             "n_timesteps": int(model.num_timesteps), "n_envs": n_envs,
             "wall_time_s": round(wall, 1), "command": command or f"millvib train --algo {algo} --env {env_id} "
                                                                   f"--task {the_task.name} --seed {seed}",
@@ -379,6 +383,16 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
     if normalized:
         save_obs_stats(venv, run / STATS_FILE)
     return None
+
+
+def _portable_model(run: Path, cls, algo: str, backend: str) -> str:
+    """The library the run's model.zip is for: an sbx SAC is rewritten as SB3's SAC with the same weights
+    (`control.sbx_to_sb3`), so the agent loads, runs and exports without JAX (its checkpoints, for --resume,
+    stay sbx's); any other model as it was trained."""
+    if backend != "sbx" or algo != "sac":
+        return backend
+    sb3_sac_from_sbx(cls.load(run / "model.zip", device="cpu")).save(run / "model.zip")
+    return "sb3"
 
 
 def _save_agent(dest: Path, run: Path, card: dict) -> None:
