@@ -1,7 +1,7 @@
 """The ablation of the action design: the earlier agents (absolute gain action, residual on pid-robust;
 results kept in docs/ablations/absolute-action/<task>/, written by `millvib benchmark --task T
 --all-seeds --out docs/benchmark/T` at commit 6fe162e, before they were retired) beside today's (relative
-action around pid-pf-robust, residual on pid-pf-ff; docs/benchmark/<task>/), on the same 200 held-out
+action around pid-pf-robust, residual on pid-pf-ff; docs/benchmark/v0/<task>/), on the same 200 held-out
 plants (both runs drew them with seed 0).
 
     python scripts/ablation_table.py
@@ -24,7 +24,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|---|")
     for task in ("startup", "rolling", "change"):
         old = json.loads((ROOT / "docs" / "ablations" / "absolute-action" / task / "benchmark.json").read_text())
-        new = json.loads((ROOT / "docs" / "benchmark" / task / "benchmark.json").read_text())
+        new = json.loads((ROOT / "docs" / "benchmark" / "v0" / task / "benchmark.json").read_text())
         assert old["plants"] == new["plants"], f"{task}: the two runs met different plants"
         for name, s in old["controllers"].items():
             if "gain" in name or "residual" in name:
