@@ -39,7 +39,8 @@ FLAGS = {
     # each base runs in a few seconds when every drawn value is valid
     "reproduce": (["--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet", "--out", "r"],
                   ["--t-end", "--resolution", "--out", "--method", "--jobs"]),
-    "bench": (["--t-end", "0.05", "--repeats", "1", "--plant-only", "--quiet"], ["--t-end", "--repeats", "--json"]),
+    "bench": (["--t-end", "0.05", "--repeats", "1", "--batch-size", "4", "--plant-only", "--quiet"],
+              ["--t-end", "--repeats", "--batch-size", "--json"]),
     "tune": (["--only", "pid-nominal", "--quiet", "--grid", "abc"],  # --grid abc: never tunes
              ["--task", "--only", "--from", "--optuna", "--trials", "--out"]),
     "scenarios": (["--no-measure"], []),
@@ -74,7 +75,8 @@ def test_every_subcommand_answers_odd_flags_with_0_or_one_line(command, data, tm
 OUTPUTS = [
     (["simulate", "--t-end", "0.2"], "--plot", ".png"), (["simulate", "--t-end", "0.2"], "--csv", ".csv"),
     (["reproduce", "--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet"], "--out", ""),
-    (["bench", "--t-end", "0.05", "--repeats", "1", "--plant-only", "--quiet"], "--json", ".json"),
+    (["bench", "--t-end", "0.05", "--repeats", "1", "--batch-size", "4", "--plant-only", "--quiet"], "--json",
+     ".json"),
     (["tune", "--only", "pid-nominal", "--quiet"], "--out", ".yaml"),
     (["sweep", "--controllers", "pid-paper", "--plants", "2", "--quiet"], "--out", ""),
     (["benchmark", "--controllers", "pid-paper", "--episodes", "2", "--no-scenarios", "--quiet"], "--json", ".json"),

@@ -1,4 +1,5 @@
 """A trained agent leaves Python as an ONNX graph that acts as the agent does."""
+import importlib.util
 import json
 
 import numpy as np
@@ -7,6 +8,13 @@ import pytest
 pytest.importorskip("onnxruntime")
 
 from millvib_env.control.export import EXPORT_TOLERANCE, export_agent  # noqa: E402
+
+
+def skip_without_sbx():
+    """Skip where sbx is not installed, without importing it: JAX is imported by
+    `control.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
+    if importlib.util.find_spec("sbx") is None:
+        pytest.skip("sbx is not installed")
 
 
 def test_the_exported_graph_acts_as_the_agent_on_observations_it_was_not_checked_on(tmp_path):
@@ -52,15 +60,15 @@ def test_a_baseline_or_a_bad_path_is_refused_in_one_line(tmp_path, capsys):
 def test_an_sbx_sac_is_sb3s_sac_weight_for_weight():
     """sbx's SAC copied into SB3's (`control.sbx_to_sb3`): the deterministic actions and both critics' values agree
     within float32 rounding (JAX and torch sum in their own order), on observations beyond the usual range."""
-    pytest.importorskip("sbx")
+    skip_without_sbx()
     import torch
-    from sbx import SAC
 
+    from millvib_env.control.agents import algo_class
     from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
     from millvib_env.envs.vec_env import make_vec_env
 
     venv = make_vec_env("MillVib-GainSchedule-v1", 2, seed=0)
-    model = SAC("MlpPolicy", venv, seed=0, policy_kwargs={"net_arch": [32, 16]})
+    model = algo_class("sac", "sbx")("MlpPolicy", venv, seed=0, policy_kwargs={"net_arch": [32, 16]})
     sb3 = sb3_sac_from_sbx(model)
     rng = np.random.default_rng(0)
     obs = (rng.standard_normal((64, *venv.observation_space.shape)) * 3.0).astype(np.float32)

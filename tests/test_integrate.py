@@ -22,9 +22,13 @@ def peak_error(a, b):
 def test_reference_agrees_with_an_independent_method_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
+    # LSODA (Adams and BDF multistep) against DOP853 (an explicit 8th-order Runge-Kutta): they agree to 3e-9
+    # here, as does Radau (implicit, 13 CPU-s against DOP853's 1). DOP853 is explicit: a trial step too long for
+    # the plant's stiff modes overflows and its error control rejects it (numpy's warnings for that are silenced)
     lsoda = simulate_batch(params, gains, 0.05, method="reference", rtol=1e-10)
-    radau = simulate_batch(params, gains, 0.05, method="reference", ivp_method="Radau", rtol=1e-10)
-    for (label, _, _), a, b in zip(paper_cases, lsoda, radau):
+    with np.errstate(invalid="ignore", over="ignore"):
+        dop853 = simulate_batch(params, gains, 0.05, method="reference", ivp_method="DOP853", rtol=1e-10)
+    for (label, _, _), a, b in zip(paper_cases, lsoda, dop853):
         assert not a.diverged and not b.diverged
         assert peak_error(a, b) <= 1e-6, label
 

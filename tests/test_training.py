@@ -1,6 +1,10 @@
 """Controllers, agent training (smoke) and the benchmark."""
+import importlib.metadata
 import importlib.util
 import json
+import os
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +20,13 @@ from millvib_env.tasks import get_task
 from millvib_env.training.benchmark import public_json, run_benchmark
 from millvib_env.training.evaluate import run_episodes
 from millvib_env.training.train import train
+
+
+def skip_without_sbx():
+    """Skip where sbx is not installed, without importing it: JAX is imported by
+    `control.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
+    if importlib.util.find_spec("sbx") is None:
+        pytest.skip("sbx is not installed")
 
 SCHEMA = {"severity_mean", "severity_median", "severity_p95", "tracking_rms_um_mean", "diverged_rate", "cost_mean",
           "episodes"}
@@ -63,7 +74,7 @@ def test_oracle_needs_and_uses_the_true_parameters():
                                            ("ppo", "sbx")])
 def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
     if backend == "sbx":
-        pytest.importorskip("sbx")
+        skip_without_sbx()
     policy = "MlpLstmPolicy" if algo == "recurrentppo" else "MlpPolicy"
     cfg = tmp_path / f"{algo}.yml"
     cfg.write_text(TINY.format(policy=policy, extra=EXTRA[algo]))
@@ -111,6 +122,29 @@ def test_sac_trains_with_sbx_by_default_where_it_is_installed_and_everything_els
     assert resolved_backend("sac", "sb3") == "sb3" and resolved_backend("ppo", "sbx") == "sbx"
 
 
+def test_jax_compilations_are_cached_beside_numbas_unless_the_user_chose(tmp_path, monkeypatch):
+    from millvib_env import _jax_cache
+
+    for var in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+                "JAX_COMPILATION_CACHE_MAX_SIZE"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delitem(sys.modules, "jax", raising=False)  # as in a process that has not imported JAX yet
+    if importlib.util.find_spec("jax") is None:
+        _jax_cache.configure()
+        assert "JAX_COMPILATION_CACHE_DIR" not in os.environ  # no JAX, nothing to set
+        return
+    _jax_cache.configure()
+    folder = Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    assert folder.parent == tmp_path / "millvib-env" and folder.is_dir()
+    assert folder.name.startswith(f"jax-{importlib.metadata.version('jax')}-")
+    assert os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] == "0"  # sbx's many small compilations too
+    mine = str(tmp_path / "mine")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", mine)
+    _jax_cache.configure()
+    assert os.environ["JAX_COMPILATION_CACHE_DIR"] == mine  # the user's own choice is kept
+
+
 @pytest.mark.parametrize("backend", ["sb3", pytest.param("sbx", marks=pytest.mark.slow)])
 def test_a_new_sac_starts_at_the_zero_action(backend):
     # the relative action's zero is the base controller: a new agent starts from it in either backend
@@ -119,7 +153,7 @@ def test_a_new_sac_starts_at_the_zero_action(backend):
     from millvib_env.training.train import start_at_zero_action
 
     if backend == "sbx":
-        pytest.importorskip("sbx")
+        skip_without_sbx()
     venv = make_vec_env("MillVib-GainSchedule-v0", 2, seed=0)
     model = algo_class("sac", backend)("MlpPolicy", venv, seed=0, device="cpu")
     obs = np.random.default_rng(0).standard_normal((16, *venv.observation_space.shape)).astype(np.float32)

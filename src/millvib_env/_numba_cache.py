@@ -40,12 +40,7 @@ def configure() -> None:
     target = None
     for root in _candidate_roots():
         fresh = not (root / name).exists()
-        try:
-            (root / name).mkdir(parents=True, exist_ok=True)
-            probe = root / name / ".write-test"
-            probe.write_text("")
-            probe.unlink()
-        except OSError:
+        if not writable_folder(root / name):
             continue
         target = root / name
         os.utime(target)  # marks this version's cache as in use (see _prune)
@@ -65,6 +60,18 @@ def configure() -> None:
         sys.modules["numba"].config.CACHE_DIR = str(target)
 
 
+def writable_folder(folder: Path) -> bool:
+    """Make `folder` (and its parents) and check that a file can be written in it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError:
+        return False
+    return True
+
+
 def _home_root() -> Path:
     try:
         home = Path.home()
@@ -78,10 +85,10 @@ def _candidate_roots() -> list[Path]:
     return [_home_root(), Path(tempfile.gettempdir()) / f"millvib-env-{user}"]
 
 
-def _prune(root: Path, keep: Path) -> None:
-    """Remove other versions' cache folders that have not been used for STALE_DAYS."""
+def _prune(root: Path, keep: Path, prefix: str = "numba-") -> None:
+    """Remove other versions' cache folders (`prefix`*) that have not been used for STALE_DAYS."""
     cutoff = time.time() - STALE_DAYS * 86400
-    for old in root.glob("numba-*"):
+    for old in root.glob(f"{prefix}*"):
         try:
             if old != keep and old.stat().st_mtime < cutoff:
                 shutil.rmtree(old, ignore_errors=True)

@@ -52,6 +52,8 @@ def _median_wall(fn: Callable[[], float], repeats: int) -> float:
 #: simulated second of the nine cases, so a longer or more repeated run is refused, not started
 T_END_RANGE = (0.05, 5.0)
 MAX_REPEATS = 50
+#: plants in the batched-throughput row (`millvib bench --batch-size`)
+BATCH_RANGE = (1, 4096)
 
 
 def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, batch_t_end: float = 1.0,
@@ -61,6 +63,9 @@ def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, 
         raise ValueError(f"t_end = {t_end!r} s is invalid: a simulated time per case in [{lo}, {hi}] s")
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= MAX_REPEATS:
         raise ValueError(f"repeats = {repeats!r} is invalid: a whole number in [1, {MAX_REPEATS}]")
+    blo, bhi = BATCH_RANGE
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not blo <= batch_size <= bhi:
+        raise ValueError(f"batch_size = {batch_size!r} is invalid: a whole number of plants in [{blo}, {bhi}]")
     simulate(t_end=0.01)  # compile or load the kernels outside the timings
     simulate(t_end=0.01, method="reference")
     cases = [(c.label, c.params, c.gains) for s in PAPER_STUDIES for c in s.cases]

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env import _jax_cache
 from millvib_env._checks import shown
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
@@ -54,6 +55,7 @@ def algo_class(algo: str, backend: str = "sb3"):
     if backend == "sbx":
 
         one_xla_thread()  # before JAX starts (training or loading): its thread pool would take every core
+        _jax_cache.configure()  # and its compilations kept on disk: the next start loads them
         try:
             import sbx
         except ImportError:
