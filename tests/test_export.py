@@ -1,5 +1,4 @@
 """A trained agent leaves Python as an ONNX graph that acts as the agent does."""
-import importlib.util
 import json
 
 import numpy as np
@@ -8,13 +7,7 @@ import pytest
 pytest.importorskip("onnxruntime")
 
 from millvib_env.control.export import EXPORT_TOLERANCE, export_agent  # noqa: E402
-
-
-def skip_without_sbx():
-    """Skip where sbx is not installed, without importing it: JAX is imported by
-    `control.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
-    if importlib.util.find_spec("sbx") is None:
-        pytest.skip("sbx is not installed")
+from tests._skips import skip_without_sbx  # noqa: E402
 
 
 def test_the_exported_graph_acts_as_the_agent_on_observations_it_was_not_checked_on(tmp_path):

@@ -20,13 +20,7 @@ from millvib_env.tasks import get_task
 from millvib_env.training.benchmark import public_json, run_benchmark
 from millvib_env.training.evaluate import run_episodes
 from millvib_env.training.train import train
-
-
-def skip_without_sbx():
-    """Skip where sbx is not installed, without importing it: JAX is imported by
-    `control.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
-    if importlib.util.find_spec("sbx") is None:
-        pytest.skip("sbx is not installed")
+from tests._skips import skip_without_sbx
 
 SCHEMA = {"severity_mean", "severity_median", "severity_p95", "tracking_rms_um_mean", "diverged_rate", "cost_mean",
           "episodes"}

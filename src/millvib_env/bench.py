@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from millvib_env._checks import integer
 from millvib_env._paths import write_text_atomic
 from millvib_env.analysis.paper import PAPER_STUDIES
 from millvib_env.params import MillParams, PIDGains, studied_range
@@ -63,9 +64,7 @@ def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, 
         raise ValueError(f"t_end = {t_end!r} s is invalid: a simulated time per case in [{lo}, {hi}] s")
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= MAX_REPEATS:
         raise ValueError(f"repeats = {repeats!r} is invalid: a whole number in [1, {MAX_REPEATS}]")
-    blo, bhi = BATCH_RANGE
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or not blo <= batch_size <= bhi:
-        raise ValueError(f"batch_size = {batch_size!r} is invalid: a whole number of plants in [{blo}, {bhi}]")
+    batch_size = integer("batch_size", batch_size, lo=BATCH_RANGE[0], hi=BATCH_RANGE[1])
     simulate(t_end=0.01)  # compile or load the kernels outside the timings
     simulate(t_end=0.01, method="reference")
     cases = [(c.label, c.params, c.gains) for s in PAPER_STUDIES for c in s.cases]
