@@ -10,3 +10,11 @@ def fail_or_finish_late(i: int, folder: str) -> int:
     time.sleep(30)
     Path(folder, f"finished-{i}").write_text("late")
     return i
+
+
+def what_a_worker_sees(name: str) -> tuple:
+    """A worker's view: the environment variable `name`, its working folder, whether it ignores Ctrl-C, its pid."""
+    import os
+    import signal
+
+    return os.environ.get(name), os.getcwd(), signal.getsignal(signal.SIGINT) is signal.SIG_IGN, os.getpid()

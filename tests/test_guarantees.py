@@ -82,6 +82,25 @@ def test_a_failing_job_stops_the_other_workers_instead_of_waiting_for_them(tmp_p
     assert not list(tmp_path.glob("finished-*"))
 
 
+def test_a_worker_runs_in_the_callers_environment_and_folder_as_they_are_at_each_pool(tmp_path, monkeypatch):
+    """The workers are forks of a fork server that started with the first pool (`distributed._pool_context`):
+    each still sees the caller's environment variables and working folder of the moment, and ignores Ctrl-C."""
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import what_a_worker_sees
+
+    monkeypatch.setenv("MILLVIB_TEST_MARK", "first")
+    first = run_jobs(what_a_worker_sees, [{"name": "MILLVIB_TEST_MARK"}] * 2, processes=2)
+    monkeypatch.setenv("MILLVIB_TEST_MARK", "second")
+    monkeypatch.chdir(tmp_path)
+    second = run_jobs(what_a_worker_sees, [{"name": "MILLVIB_TEST_MARK"}] * 2, processes=2)
+    monkeypatch.delenv("MILLVIB_TEST_MARK")
+    third = run_jobs(what_a_worker_sees, [{"name": "MILLVIB_TEST_MARK"}] * 2, processes=2)
+    assert [r[0] for r in first + second + third] == ["first"] * 2 + ["second"] * 2 + [None] * 2
+    assert [r[1] for r in second + third] == [str(tmp_path)] * 4
+    assert all(r[2] for r in first + second + third)  # Ctrl-C is the parent's to handle
+    assert os.getpid() not in {r[3] for r in first + second + third}
+
+
 @pytest.mark.parametrize("json_at", ["inside", "same"])
 def test_another_output_of_the_run_inside_the_result_folder_is_refused(tmp_path, capsys, json_at):
     out = tmp_path / "D"
@@ -312,16 +331,35 @@ def _millvib(*args: str, **popen) -> subprocess.Popen:
                             preexec_fn=_default_ctrl_c, **popen)
 
 
-def _children(pid: int) -> list[int]:
-    kids = []
+def _process_table() -> dict[int, tuple[int, str]]:
+    """pid -> (parent pid, command line) of every process readable now."""
+    table = {}
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
             fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmdline = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
         except OSError:  # gone meanwhile
             continue
-        if int(fields[1]) == pid:
-            kids.append(int(stat.parent.name))
-    return kids
+        table[int(stat.parent.name)] = (int(fields[1]), cmdline)
+    return table
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below `pid`: the pool's workers, multiprocessing's resource tracker and fork server."""
+    table = _process_table()
+    found, frontier = [], [pid]
+    while frontier:
+        kids = [p for p, (ppid, _) in table.items() if ppid in frontier]
+        found += kids
+        frontier = kids
+    return found
+
+
+def _workers(pid: int) -> list[int]:
+    """The pool's workers below `pid` (spawned ones are its children; a fork server's, its grandchildren)."""
+    table = _process_table()
+    return [p for p in _descendants(pid) if p in table and "resource_tracker" not in table[p][1]
+            and not (table[p][0] == pid and "forkserver" in table[p][1])]
 
 
 def _ignores_ctrl_c(pid: int) -> bool:
@@ -382,8 +420,8 @@ def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tm
     left, and the result folder not written."""
     long_sweep = ["sweep", "--controllers", "pid-nominal", "pid-paper", "--plants", "400", "--quiet"]
     proc = _millvib(*long_sweep, "--jobs", "2", "--out", str(tmp_path / "a"))
-    _wait_for(lambda: len(_children(proc.pid)) >= 3, proc, "two workers")  # and the pool's resource tracker
-    workers = _children(proc.pid)
+    _wait_for(lambda: len(_workers(proc.pid)) >= 2, proc, "two workers")
+    workers = _descendants(proc.pid)  # the workers, the resource tracker and the fork server
     proc.send_signal(signal.SIGTERM)
     err = proc.communicate(timeout=300)[1]
     assert proc.returncode == 143 and err.strip().splitlines()[-1] == "millvib sweep: terminated", err
@@ -391,9 +429,9 @@ def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tm
     _assert_ended(workers)
 
     proc = _millvib(*long_sweep, "--jobs", "2", "--out", str(tmp_path / "b"), start_new_session=True)
-    _wait_for(lambda: len(_children(proc.pid)) >= 3 and not _ignores_ctrl_c(proc.pid), proc,
-              "two workers and the parent's Ctrl-C handler back")  # it ignores Ctrl-C while it spawns them
-    workers = _children(proc.pid)
+    _wait_for(lambda: len(_workers(proc.pid)) >= 2 and not _ignores_ctrl_c(proc.pid), proc,
+              "two workers and the parent's Ctrl-C handler back")  # it ignores Ctrl-C while it starts them
+    workers = _descendants(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
     err = proc.communicate(timeout=300)[1]
     assert proc.returncode == 130 and err.strip().splitlines() == ["millvib sweep: interrupted"], err

@@ -2,7 +2,8 @@
 
 `run_jobs(fn, jobs, ray=...)` returns `[fn(**job) for job in jobs]`, in order, computed
 
-* locally: in `processes` spawned worker processes (or in this process with processes=1);
+* locally: in `processes` worker processes (or in this process with processes=1), each started afresh from a
+  server process that imported the package once (`_pool_context`);
 * on Ray (``ray=""`` or ``"local"``: a local cluster with this machine's CPUs; ``ray="auto"`` or
   ``"ray://host:10001"``/``"host:6379"``: a running cluster), each job a Ray task asking for
   `num_cpus` CPUs. Ray is optional (``pip install -e ".[ray]"``); without it the same commands run
@@ -71,27 +72,51 @@ def _call(fn: Callable, kwargs: dict) -> Any:
     return fn(**kwargs)
 
 
-def _quiet_worker() -> None:
-    """A worker leaves Ctrl-C to its parent, which stops every worker and says so in one line."""
+def _start_worker(environ: dict[str, str]) -> None:
+    """A worker leaves Ctrl-C to its parent, which stops every worker and says so in one line; and it runs in
+    the parent's environment as it is now (a fork server keeps the one it started with)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for key in set(os.environ) - set(environ):
+        del os.environ[key]
+    os.environ.update(environ)
 
 
-def _run_pool(fn: Callable, jobs: list, processes: int, bar) -> list:
-    """The jobs in spawned worker processes. Whatever ends the run early (a job's error, Ctrl-C, SIGTERM)
-    stops the other workers at once instead of waiting for their jobs, then goes on up.
+def _pool_context(fn: Callable, preload: Sequence[str] = ()):
+    """How the workers start: from multiprocessing's fork server where the platform has one (POSIX), else spawned.
+
+    A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again: 1-3 CPU-s each,
+    at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
+    the first pool of this process, that imports the package, the module of the pool's function and the modules
+    in `preload` (torch for training) once; every
+    worker after that is a fork of it, so it starts with those modules imported and inherits no thread pool, torch
+    state or open file of this process (the server runs none). A worker runs in this process's current
+    environment (`_start_worker`) and working folder; a variable read when a module is imported (NUMBA_*) is the
+    server's, i.e. this process's when its first pool started."""
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["millvib_env", fn.__module__, *preload])  # read when the server starts
+    return ctx
+
+
+def _run_pool(fn: Callable, jobs: list, processes: int, bar, preload: Sequence[str] = ()) -> list:
+    """The jobs in worker processes (`_pool_context`). Whatever ends the run early (a job's error, Ctrl-C,
+    SIGTERM) stops the other workers at once instead of waiting for their jobs, then goes on up.
 
     A terminal's Ctrl-C reaches the whole process group, and a worker still importing would print a
-    traceback. So the workers are spawned with Ctrl-C ignored, which they inherit through exec (a blocked
-    mask is not inherited by multiprocessing's spawn); a Ctrl-C in those few milliseconds is not seen."""
+    traceback. So the workers start with Ctrl-C ignored: the pool starts them (and the fork server, at the first
+    pool) while this process ignores it, and an ignored signal is inherited through exec and kept by the fork
+    server for its forks (a blocked mask is not inherited by either); a Ctrl-C in those few milliseconds is not
+    seen."""
     n_workers = min(processes, len(jobs))
     main_thread = threading.current_thread() is threading.main_thread()
     pool = None
     try:
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
         try:
-            pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_quiet_worker,
-                                          mp_context=mp.get_context("spawn"))  # not forked: numba's threads
-            futures = [pool.submit(_call, fn, job) for job in jobs[:n_workers]]  # each spawns its worker
+            pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_start_worker,
+                                          initargs=(dict(os.environ),), mp_context=_pool_context(fn, preload))
+            futures = [pool.submit(_call, fn, job) for job in jobs[:n_workers]]  # each starts its worker
         finally:
             if main_thread:
                 signal.signal(signal.SIGINT, previous)
@@ -120,9 +145,10 @@ def _run_pool(fn: Callable, jobs: list, processes: int, bar) -> list:
 
 
 def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, processes: int = 1,
-             num_cpus: float = 1.0, progress: bool = False, desc: str = "jobs") -> list:
+             num_cpus: float = 1.0, progress: bool = False, desc: str = "jobs", preload: Sequence[str] = ()) -> list:
     """`[fn(**job) for job in jobs]`, locally or on Ray (module docstring). `fn` must be importable
-    (a module-level function)."""
+    (a module-level function). `preload`: modules the local workers need that `fn`'s module does not import
+    (imported once by the fork server, if this is the process's first pool)."""
     jobs = list(jobs)
     bar = None
     if progress:
@@ -146,7 +172,7 @@ def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, proc
                 if bar is not None:
                     bar.update(1)
             return out
-        return _run_pool(fn, jobs, processes, bar)
+        return _run_pool(fn, jobs, processes, bar, preload)
     finally:
         if bar is not None:
             bar.close()

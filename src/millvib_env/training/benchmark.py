@@ -116,9 +116,9 @@ def loop_description(cfg: EnvConfig) -> dict:
     the amplifier's limit, the valve and the sensors; ``analog`` for the paper's continuous loop (v0)."""
 
     p = cfg.base_params
-    valve = {"natural_frequency_hz": p.valve_wn_hz, "damping": p.valve_zeta, "xv_max_m": p.xv_max,
-             "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)} if not p.ideal_valve else \
-        {"ideal": True, "xv_max_m": p.xv_max, "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)}
+    valve = ({"natural_frequency_hz": p.valve_wn_hz, "damping": p.valve_zeta, "xv_max_m": p.xv_max,
+              "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)} if not p.ideal_valve else
+             {"ideal": True, "xv_max_m": p.xv_max, "m_per_v": p.xv_per_volt, "rated_flow_m3_s": rated_flow(p)})
     finite = lambda v: v if math.isfinite(v) else None  # noqa: E731 (JSON has no infinity: null = no limit)
     valve["xv_max_m"] = finite(valve["xv_max_m"])  # type: ignore[assignment]
     out = {"u_max_v": finite(p.u_max), "valve": valve}

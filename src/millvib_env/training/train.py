@@ -422,9 +422,10 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
 
 def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str | None = None,
                 cpus_per_seed: float = 1.0, **kwargs) -> list[dict]:
-    """Train several seeds: in `jobs` local spawned processes (no thread pool or torch state is
-    inherited), or each as a Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local
-    cluster, or an address). Seed s is saved to `save_dir`/seed-<s>/. Returns the cards in seed order."""
+    """Train several seeds: in `jobs` local worker processes (`distributed.run_jobs`: forks of a fork server
+    that imported torch and SB3 once; no thread pool or torch state of this process is inherited), or each as a
+    Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local cluster, or an address). Seed s is saved to
+    `save_dir`/seed-<s>/. Returns the cards in seed order."""
 
     seeds = list(dict.fromkeys(seeds))
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
@@ -434,7 +435,8 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
         task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
     job_args = [{**kwargs, "task": task, "seed": s, "progress": False,
                  "save_dir": None if save_dir is None else str(Path(save_dir) / f"seed-{s}")} for s in seeds]
-    return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed)
+    return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed,
+                    preload=("torch", "torch._dynamo", "stable_baselines3"))
 
 
 def train_from_cli(args) -> int:
