@@ -213,3 +213,14 @@ def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
         with pytest.raises(ValueError, match=message) as err:
             run_benchmark(controllers, **{**kw, **extra})
         assert "\n" not in str(err.value)
+
+
+def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
+    """`--jobs N`: controllers x chunks of episodes as jobs in local worker processes, the same numbers (an
+    agent's jobs are the same function, `episode_records`, and are checked on Ray in tests/test_ray.py)."""
+    kw = dict(task="startup", episodes=2, progress=False, scenarios=False, reference="pid-robust")
+    one = public_json(run_benchmark(["pid-robust", "pid-paper"], **kw))
+    two = public_json(run_benchmark(["pid-robust", "pid-paper"], jobs=2, **kw))
+    assert one == two and set(one["controllers"]) == {"pid-robust", "pid-paper"}
+    with pytest.raises(ValueError, match="jobs = 0 is invalid"):
+        run_benchmark(["pid-robust"], jobs=0, **kw)

@@ -426,7 +426,7 @@ def stability_map(c1_values: Sequence[float] | np.ndarray, Ct_values: Sequence[f
                   base: MillParams | None = None, ki: float = 1e-3, kd: float = 0.0, friction: Friction = "stick",
                   progress: bool = False, processes: int = 1) -> np.ndarray:
     """KP_crit over a (c1, Ct) grid: array of shape (len(c1_values), len(Ct_values)); the cells in `processes`
-    spawned processes (each cell is independent: the same numbers as one process)."""
+    worker processes (each cell is independent: the same numbers as one process)."""
     return stability_maps(c1_values, Ct_values, frictions=(friction,), base=base, ki=ki, kd=kd, progress=progress,
                           processes=processes)[0]
 

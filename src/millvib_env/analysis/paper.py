@@ -244,7 +244,7 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
 
     `solver_study`: also integrate the nine cases with ode45's default tolerances and a ladder of
     tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
-    existing summary.json are kept). `jobs`: spawned processes for the stability maps' cells and the solver
+    existing summary.json are kept). `jobs`: worker processes for the stability maps' cells and the solver
     study's runs (each independent: the same files as one process).
     """
     jobs = integer("jobs", jobs, lo=1, hi=1024)

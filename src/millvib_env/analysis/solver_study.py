@@ -107,7 +107,7 @@ def _solver_job(study_key: str, case, setting: SolverSetting, t_end: float,
 def run_solver_study(t_end: float = 1.0, solvers=SOLVERS, progress: bool = True, keep_runs: bool = True,
                      cases=None, processes: int = 1) -> tuple[list[SolverRun], dict]:
     """Every case (default: the nine, as (study, case) pairs) under every solver setting, in `processes`
-    spawned processes (each run is independent: the same rows as one process, wall times aside); returns the
+    worker processes (each run is independent: the same rows as one process, wall times aside); returns the
     rows and {(case, solver): SimResult} of the first and last settings."""
     processes = integer("processes", processes, lo=1, hi=1024)
     if cases is None:

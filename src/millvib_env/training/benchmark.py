@@ -27,7 +27,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from millvib_env._checks import shown
+from millvib_env._checks import integer, shown
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
@@ -222,16 +222,30 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
-def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, env_id: str, ray: str | None,
-                     progress: bool) -> dict[tuple, list[EpisodeRecord]]:
-    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as Ray tasks of
-    CHUNK episodes (each episode depends only on its seeds, so the records are the same)."""
-    records: dict[tuple, list[EpisodeRecord]] = {}
-    if ray is not None:
+def _chunks(plants: list[int], processes: int | None, ctrl: Controller) -> list[list[int]]:
+    """The plants of one controller's jobs. An agent's network acts on the whole batch of plants at once, and its
+    actions round differently with the batch's size (a matrix product's blocking), so an agent runs every plant in
+    one job: its numbers are the one-process run's. A baseline's plants do not touch each other: CHUNK a job on
+    Ray, and on `processes` local workers one share each, so that a slow row (the MPC bounds) is spread out."""
+    if ctrl.card is not None:
+        return [plants]
+    size = CHUNK if processes is None else max(1, min(CHUNK, -(-len(plants) // processes)))
+    return [plants[i:i + size] for i in range(0, len(plants), size)]
 
-        jobs = [{"name": n, "task": task, "seeds": plants[i:i + CHUNK], "env_id": env_id, "agent_seed": s}
-                for n, s in units for i in range(0, len(plants), CHUNK)]
-        parts = run_jobs(episode_records, jobs, ray=ray, progress=progress, desc=f"benchmark {task.name} (ray)")
+
+def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, env_id: str, ray: str | None,
+                     progress: bool, processes: int = 1) -> dict[tuple, list[EpisodeRecord]]:
+    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as jobs of CHUNK
+    episodes on Ray or in `processes` local worker processes (each episode depends only on its seeds, so the
+    records are the same)."""
+    records: dict[tuple, list[EpisodeRecord]] = {}
+    if ray is not None or processes > 1:
+        jobs = [{"name": n, "task": task, "seeds": chunk, "env_id": env_id, "agent_seed": s}
+                for n, s in units for chunk in _chunks(plants, processes if ray is None else None, loaded[(n, s)])]
+        agents = any(loaded[u].card is not None for u in units)  # the workers then import torch and SB3 once
+        parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
+                         desc=f"benchmark {task.name} ({'ray' if ray is not None else f'{processes} processes'})",
+                         preload=("torch", "stable_baselines3") if agents else ())
         for job, part in zip(jobs, parts):
             records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
     else:
@@ -252,14 +266,15 @@ def _scenario_records(ctrl, plant: int, task: Task) -> dict[str, dict]:
 def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
-                  all_seeds: bool = False, reference: str | None = None) -> dict:
+                  all_seeds: bool = False, reference: str | None = None, jobs: int = 1) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
     ship (`all_seeds`, the full protocol; its default is FULL_EPISODES plants, DEFAULT_EPISODES
     otherwise). With `ray` (an address, or "" for a local cluster) controllers x seeds x chunks of
     CHUNK episodes run as Ray tasks; each episode depends only on its seeds, so the numbers are the
-    local run's. Every controller is compared on the same plants with `reference` (default
+    local run's; with `jobs` > 1 they run so in that many local worker processes (`distributed.run_jobs`), with
+    the same numbers. Every controller is compared on the same plants with `reference` (default
     `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
     `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
     (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
@@ -271,6 +286,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
     env_id = env_id_for("gain", env_version)
+    jobs = integer("jobs", jobs, lo=1, hi=1024)
     t = get_task(task)
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
@@ -280,6 +296,9 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if own and ray is not None:
         raise ValueError(f"ray = {ray!r} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
                          "in this process; give ray=None")
+    if own and jobs > 1:
+        raise ValueError(f"jobs = {jobs} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
+                         "in this process; give jobs=1")
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
@@ -295,7 +314,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
                     "scenarios": {}, "records": {}}
     start = time.time()
-    records = _collect_records(units, loaded, plants, t, env_id, ray, progress)
+    records = _collect_records(units, loaded, plants, t, env_id, ray, progress, jobs)
     for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
                      unit="controller", disable=not progress, leave=False):
         recs = [r for (n, _), part in records.items() if n == name for r in part]
@@ -778,7 +797,7 @@ def benchmark_from_cli(args) -> int:
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed,
                            env_version=args.env_version,
                            scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray,
-                           all_seeds=args.all_seeds, reference=args.reference)
+                           all_seeds=args.all_seeds, reference=args.reference, jobs=args.jobs)
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

@@ -86,6 +86,9 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "
                         "at ADDRESS; results equal the local run's for the same seed")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="local worker processes for controllers x episode chunks (default 1: this process); each "
+                        "episode depends only on its seeds, so the numbers are the same for any number")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
