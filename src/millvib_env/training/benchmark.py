@@ -222,12 +222,12 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
-def _chunks(plants: list[int], processes: int | None, ctrl: Controller) -> list[list[int]]:
+def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[int]]:
     """The plants of one controller's jobs. An agent's network acts on the whole batch of plants at once, and its
     actions round differently with the batch's size (a matrix product's blocking), so an agent runs every plant in
     one job: its numbers are the one-process run's. A baseline's plants do not touch each other: CHUNK a job on
     Ray, and on `processes` local workers one share each, so that a slow row (the MPC bounds) is spread out."""
-    if ctrl.card is not None:
+    if agent:
         return [plants]
     size = CHUNK if processes is None else max(1, min(CHUNK, -(-len(plants) // processes)))
     return [plants[i:i + size] for i in range(0, len(plants), size)]
@@ -241,8 +241,8 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, e
     records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None or processes > 1:
         jobs = [{"name": n, "task": task, "seeds": chunk, "env_id": env_id, "agent_seed": s}
-                for n, s in units for chunk in _chunks(plants, processes if ray is None else None, loaded[(n, s)])]
-        agents = any(loaded[u].card is not None for u in units)  # the workers then import torch and SB3 once
+                for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
+        agents = any(s is not None for _, s in units)  # the workers then import torch and SB3 once
         parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"benchmark {task.name} ({'ray' if ray is not None else f'{processes} processes'})",
                          preload=("torch", "stable_baselines3") if agents else ())
