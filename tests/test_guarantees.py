@@ -437,3 +437,21 @@ def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tm
     assert proc.returncode == 130 and err.strip().splitlines() == ["millvib sweep: interrupted"], err
     _assert_ended(workers)
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's (prctl)")
+def test_cpu_time_waits_for_the_orphans_a_command_leaves_and_keeps_its_exit_status(tmp_path):
+    """`scripts/cpu_time.py` (how the suite's and a pool's CPU time are measured): a process that outlives the
+    command, as a fork server does, is waited for before the line is printed; the command's status is kept."""
+    import subprocess
+
+    marker = tmp_path / "orphan-done"
+    orphan = ("import os, sys, time\n"
+              "if os.fork() == 0:\n"
+              "    os.close(1); os.close(2)  # not holding the caller's pipes open\n"
+              f"    time.sleep(0.5); open({str(marker)!r}, 'w').close(); os._exit(0)\n"
+              "sys.exit(3)\n")
+    run = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "scripts" / "cpu_time.py"),
+                          sys.executable, "-c", orphan], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 3 and marker.exists(), run.stderr
+    assert run.stderr.strip().splitlines()[-1].startswith("cpu_time: exit 3, ")
