@@ -602,16 +602,16 @@ def public_json(result: dict) -> dict:
     return {k: v for k, v in result.items() if k not in ("records", "wall_time_s")}
 
 
-def _write_outputs(result: dict, out: Path) -> list[Path]:
-    """Write the result folder as a whole: into a temporary sibling, then put in place
+def _write_outputs(result: dict, out: Path, task: Task) -> list[Path]:
+    """Write the result folder of a benchmark of `task` as a whole: into a temporary sibling, then put in place
     (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files."""
 
     with atomic_folder(out, command="benchmark") as tmp:
-        files = _write_files(result, tmp)
+        files = _write_files(result, tmp, task)
     return [out / f.name for f in files]
 
 
-def _write_files(result: dict, out: Path) -> list[Path]:
+def _write_files(result: dict, out: Path, task: Task) -> list[Path]:
     files = []
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=["controller", *CSV_FIELDS], extrasaction="ignore")
@@ -626,7 +626,6 @@ def _write_files(result: dict, out: Path) -> list[Path]:
     if result.get("reference", "pid-robust") in result["records"] and len(result["records"]) > 1:
         files.append(_plot_paired_plane(result, out / "paired_plane.png"))
     files.append(_plot_bars(result, out / "cost_bars.png"))
-    task = get_task(result.get("task", "startup"))  # a result names its task (it may have been read from JSON)
     if task.name == "startup":
         files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
                                   result["plants"][0], task=task, version=result.get("env_version", "v0")))
@@ -804,6 +803,6 @@ def benchmark_from_cli(args) -> int:
         write_text_atomic(args.json, json.dumps(public_json(result), indent=2))
         print(f"wrote {args.json}")
     if args.out:
-        files = _write_outputs(result, Path(args.out))
+        files = _write_outputs(result, Path(args.out), args.task)  # the task the CLI resolved
         print(f"wrote {len(files)} files to {args.out}")
     return 0
