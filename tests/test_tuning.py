@@ -96,3 +96,5 @@ def test_a_run_tunes_every_entry_in_order_each_on_the_one_it_builds_on(monkeypat
     shared = tune_task("rolling", only=["pid-oracle", "lqr-oracle", "pid-pf-oracle"], from_task="startup",
                        progress=False, version="v1")
     assert shared == {n: {"from_task": "startup"} for n in ("pid-oracle", "lqr-oracle", "pid-pf-oracle")}
+    with pytest.raises(ValueError, match="jobs = 0 is invalid"):
+        tune_task("startup", only=["pid-oracle"], grid=2, progress=False, version="v1", jobs=0)

@@ -34,12 +34,14 @@ from typing import Any, Callable
 
 import numpy as np
 
+from millvib_env._checks import integer
 from millvib_env._paths import check_output, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.control.factory import control_config_path, control_entry, oracle_table
 from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
+from millvib_env.distributed import run_jobs
 from millvib_env.envs.config import cached_env_config, load_env_config
 from millvib_env.tasks import Task, get_task
 from millvib_env.training import tuning  # the searches, called through the module (a test stands them in)
@@ -125,6 +127,7 @@ class _Run:
     progress: bool
     shipped: dict
     out: dict = field(default_factory=dict)
+    jobs: int = 1
 
     def say(self, msg: str) -> None:
         if self.progress:
@@ -160,11 +163,9 @@ def _tune_robust(r: _Run) -> dict:
 
 def _tune_pid_oracle(r: _Run) -> dict:
 
-    return _tuned_table(r.t, r.grid, "pid-oracle", r.seeds["oracle"], r.progress, (
+    return _tuned_table(r, "pid-oracle", r.seeds["oracle"], (
         "gains tuned per grid plant over 6 disturbance draws; log10 gains interpolated bilinearly in "
-        "(log c1, log Ct) between grid points"),
-        lambda plant: tuning.tune(r.seeds["oracle"], task=r.t, params=plant, refine_iters=40, version=r.version),
-        r.version)
+        "(log c1, log Ct) between grid points"))
 
 
 def _tune_lqr(r: _Run) -> dict:
@@ -218,10 +219,18 @@ def _tune_pf_ff(r: _Run) -> dict:
 
 def _tune_pf_oracle(r: _Run) -> dict:
 
-    base = np.asarray(r.current("pid-pf-robust")["log10_gains"], float)
-    return _tuned_table(r.t, r.grid, "pid-pf-oracle", r.seeds["pf-oracle"], r.progress, PF_ORACLE_HOW,
-                        lambda plant: tuning.tune_from(base[None, :], r.seeds["pf-oracle"], task=r.t, refine_iters=60,
-                                                step_decades=0.2, params=plant, version=r.version), r.version)
+    base = [float(v) for v in r.current("pid-pf-robust")["log10_gains"]]
+    return _tuned_table(r, "pid-pf-oracle", r.seeds["pf-oracle"], PF_ORACLE_HOW, base=base)
+
+
+def _tune_cell(kind: str, task: Task, seeds: list[int], plant: dict, version: str,
+               base: list[float] | None = None) -> tuning.TuneResult:
+    """One grid plant of an oracle table (`kind` pid-oracle or pid-pf-oracle): a job of its own, so that
+    `--jobs N` tunes the plants in N worker processes (each plant is independent: the same gains)."""
+    if kind == "pid-oracle":
+        return tuning.tune(seeds, task=task, params=plant, refine_iters=40, version=version)
+    return tuning.tune_from(np.asarray(base, float)[None, :], seeds, task=task, refine_iters=60, step_decades=0.2,
+                            params=plant, version=version)
 
 
 #: how each tunable baseline is tuned, in the order a run tunes them (an entry may build on one before it)
@@ -238,13 +247,15 @@ SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 
 def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str | Task | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
-              progress: bool = True, version: str = "v0") -> dict[str, Any]:
+              progress: bool = True, version: str = "v0", jobs: int = 1) -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
-    run or else from `shipped` (the task's control config)."""
+    run or else from `shipped` (the task's control config). `jobs`: worker processes for the oracle tables'
+    grid plants (`distributed.run_jobs`; the same tables for any number)."""
+    jobs = integer("jobs", jobs, lo=1, hi=1024)
     t = get_task(task)
     shared_from = None if from_task is None else get_task(from_task).name
-    r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}))
+    r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}), jobs=jobs)
     todo = list(dict.fromkeys(only or ENTRIES))
     if optuna:
         r.out.update(_tune_with_optuna(t, r.seeds, todo, optuna, trials, r.say, version))
@@ -255,15 +266,22 @@ def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str
     return r.out
 
 
-def _tuned_table(t: Task, grid: int, name: str, seeds: list[int], progress: bool, how: str, tune_plant,
-                 version: str = "v0") -> dict:
-    """A per-plant gain table on the oracle grid: `tune_plant({"c1", "Ct"})` (a TuneResult) for each grid plant."""
+def _tuned_table(r: _Run, name: str, seeds: list[int], how: str, base: list[float] | None = None) -> dict:
+    """A per-plant gain table on the oracle grid: `_tune_cell` (a TuneResult) for each grid plant, in this process
+    or in `r.jobs` worker processes."""
     from tqdm.auto import tqdm
 
-    c1_grid, ct_grid, cells = _oracle_grid(t, grid, version)
-    results = {}
-    for i, j in tqdm(cells, desc=f"tuning {name} grid", unit="plant", disable=not progress):
-        results[i, j] = tune_plant({"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])})
+    grid = r.grid
+    c1_grid, ct_grid, cells = _oracle_grid(r.t, grid, r.version)
+    jobs = [{"kind": name, "task": r.t, "seeds": seeds, "plant": {"c1": float(c1_grid[i]), "Ct": float(ct_grid[j])},
+             "version": r.version, "base": base} for i, j in cells]
+    if r.jobs > 1:
+        done = run_jobs(_tune_cell, jobs, processes=r.jobs, progress=r.progress,
+                        desc=f"tuning {name} grid ({r.jobs} processes)")
+    else:
+        done = [_tune_cell(**job) for job in tqdm(jobs, desc=f"tuning {name} grid", unit="plant",
+                                                  disable=not r.progress)]
+    results = dict(zip(cells, done))
     log_gains = np.array([[results[i, j].log10_gains for j in range(grid)] for i in range(grid)])
     costs = np.array([[results[i, j].cost for j in range(grid)] for i in range(grid)])
     return _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how)
@@ -345,7 +363,7 @@ def tune_from_cli(args) -> int:
         raise ValueError(f"{shipped_path} must be a mapping of entries")
     start = time.time()
     tuned = tune_task(t, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
-                      trials=args.trials, shipped=shipped, progress=not args.quiet, version=version)
+                      trials=args.trials, shipped=shipped, progress=not args.quiet, version=version, jobs=args.jobs)
     merged, notes = merge_entries(shipped, tuned, force=args.force)
     merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um (a diverged episode: at "
                               f"least 1000), gain-schedule env {version} config {t.config}, gains held fixed")
