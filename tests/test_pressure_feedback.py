@@ -31,7 +31,7 @@ def test_the_relative_map_gives_exactly_the_base_gains_at_zero_and_clips_offsets
 def test_the_relative_action_at_zero_runs_the_same_trajectory_as_the_fixed_policy_with_its_gains():
     from millvib_env.control.policies import FixedGainPolicy
 
-    fixed = FixedGainPolicy("pf", BASE, None)
+    fixed = FixedGainPolicy("pf", BASE)
     seeds = [120001, 120002, 120003]
     a = run_episodes(fixed, seeds, task="rolling")
     venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 3, seed=0, config="rolling",

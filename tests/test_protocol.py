@@ -198,6 +198,8 @@ def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
 
     mine = FixedGainPolicy("my-pid", PIDGains(1.5e6, 2e3, 40.0))
     mine.env_id = "MillVib-GainSchedule-v1"
+    with pytest.raises(ValueError, match="description = .* is invalid: a string"):  # a GainMap where it once was
+        FixedGainPolicy("my-pid", PIDGains(1.5e6, 2e3, 40.0), object())
     kw = dict(task="startup", episodes=3, scenarios=False, progress=False)
     result = run_benchmark(["pid-robust", mine], **kw)
     assert "pid-pf-robust" in result["controllers"]["my-pid"]["paired"]
@@ -209,6 +211,7 @@ def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
     for controllers, extra, message in (([taken], {}, r"controllers\[0\]\.name = 'pid-robust' is invalid"),
                                         ([FixedGainPolicy("my-v0", PIDGains(1e6, 1.0))], {}, "version v1"),
                                         ([mine], {"ray": ""}, "ray = '' is invalid"),
+                                        ([mine], {"jobs": 2}, "jobs = 2 is invalid"),
                                         (["pid-robust", 3], {}, r"controllers\[1\] = 3 is invalid")):
         with pytest.raises(ValueError, match=message) as err:
             run_benchmark(controllers, **{**kw, **extra})

@@ -37,10 +37,13 @@ class FixedGainPolicy(Controller):
     """A fixed-gain controller (a PID, + pressure feedback with 4 gains, + force feedforward with 5). It
     runs in an env whose action is relative to its gains with zero range (`fixed_actions`), so the
     gains that run are exactly the ones given: never clipped to an action's bounds (a 1e12 gain in a
-    config runs as 1e12, or is refused if it is negative or not finite)."""
+    config runs as 1e12, or is refused if it is negative or not finite). The gains are all it needs: the
+    environment's action bounds (its GainMap) play no part."""
 
-    def __init__(self, name: str, gains, gain_map: GainMap | None = None, description: str = ""):
-
+    def __init__(self, name: str, gains, description: str = ""):
+        if not isinstance(description, str):
+            raise ValueError(f"description = {description!r:.60} is invalid: a string (a FixedGainPolicy takes a "
+                             "name, its gains and a description)")
         self.name, self.description = name, description
         self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)
         self.env_kwargs = {"actions": fixed_actions(self.gains)}

@@ -44,13 +44,13 @@ class Baseline:
 
 def paper_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """The paper's PID, the same on every task."""
-    return FixedGainPolicy(name, PAPER_GAINS, gain_map, REGISTRY[name].description)
+    return FixedGainPolicy(name, PAPER_GAINS, REGISTRY[name].description)
 
 
 def fixed_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """One fixed gain set, from the task's control config entry `name` (its ``gains`` and ``how``)."""
     entry = control_entry(task, name, version)
-    return FixedGainPolicy(name, entry_gains(task, name, entry, version), gain_map, entry.get("how", ""))
+    return FixedGainPolicy(name, entry_gains(task, name, entry, version), entry.get("how", ""))
 
 
 def gain_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
