@@ -14,12 +14,13 @@ from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.actions import GainMap
-from millvib_env.envs.config import EnvConfig, cached_env_config
+from millvib_env.envs.config import CONFIG_ALIASES, EnvConfig, cached_env_config
 
 __all__ = ["Task", "get_task", "list_tasks", "all_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
 
 SEED_PURPOSES = ("training", "tuning", "validation", "heldout")
-TASK_ALIASES = {"default": "startup"}
+#: a task's aliases are its config's (``default`` is ``startup``): one table, `envs.config.CONFIG_ALIASES`
+TASK_ALIASES = CONFIG_ALIASES
 #: training seeds 0..MAX_TRAINING_SEED (100 environment seeds each, evaluation 5000 further on)
 MAX_TRAINING_SEED = 49
 TRAIN_SEED_STRIDE = 100

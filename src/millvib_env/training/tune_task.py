@@ -43,13 +43,14 @@ from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.config import cached_env_config, load_env_config
+from millvib_env.params import MillParams
 from millvib_env.tasks import Task, get_task
 from millvib_env.training import tuning  # the searches, called through the module (a test stands them in)
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
 
-#: the plant of pid-nominal: Table 1's c1 and Ct
-NOMINAL_PLANT = {"c1": 2.25e6, "Ct": 5e-16}
+#: the plant of pid-nominal: Table 1's c1 and Ct (`MillParams`' defaults, their one home)
+NOMINAL_PLANT = {"c1": MillParams().c1, "Ct": MillParams().Ct}
 #: pid-pf-oracle's "how"
 PF_ORACLE_HOW = ("PID + pressure-feedback gains tuned per grid plant over 32 disturbance draws (Nelder-Mead from "
                  "pid-pf-robust, 60 iterations, never worse than pid-pf-robust on them); log10 gains interpolated "
