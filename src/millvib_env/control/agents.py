@@ -304,16 +304,17 @@ def _agent_version(folder: Path) -> str:
     return env_id.rsplit("-", 1)[-1]
 
 
-def list_agents(task: str | None = None, version: str | None = None) -> list[str]:
+def list_agents(task: str | Task | None = None, version: str | None = None) -> list[str]:
     """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
     optionally only those trained on `task` and those trained in environment version `version`."""
+    wanted = None if task is None else get_task(task).name  # the name enters here, once
     root = agents_dir()
     if not root.is_dir():
         return []
     names = []
     for p in sorted(root.iterdir()):
         if p.is_dir() and agent_seed_folders(p):
-            if task is not None and _agent_task(p) != get_task(task).name:
+            if wanted is not None and _agent_task(p) != wanted:
                 continue
             if version is not None and _agent_version(p) != version:
                 continue
