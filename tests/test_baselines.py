@@ -47,6 +47,27 @@ def test_lqr_closed_loop_is_stable_on_every_plant_of_the_oracle_grid(task):
             assert np.linalg.eigvals(A - B @ K_env[None, :]).real.max() < 0, (c1, ct)
 
 
+def test_the_v1_lqr_oracle_designs_for_every_named_scenarios_plant_even_one_beyond_the_amplifier():
+    """The high-leakage scenario's plant (Ct = 5e-9) takes about 180 V to hold against its leak, beyond v1's
+    +-10 V amplifier: linearised with that limit the command had no effect (B = 0) and the discrete Riccati
+    equation had no solution, so `millvib headroom --task startup` failed. The design model leaves the
+    actuator's limits out, as it leaves out the spool's stroke; a plant within them gets the gains it had."""
+    from millvib_env.envs.scenarios import get_scenario, list_scenarios
+
+    lqr = load_controller("lqr-oracle", "startup", version="v1")
+    for name in list_scenarios():
+        params = get_scenario(name).params
+        gains = lqr.gains_for(params.get("c1", MillParams().c1), params.get("Ct", MillParams().Ct))
+        assert np.all(np.isfinite(gains)), name
+    held = lqr.base_params.replace(Ct=5e-9)
+    assert linearize(held.replace(valve_wn_hz=0.0, xv_max=np.inf), 0.0, friction="stick").B[2, 0] == 0.0  # the cause
+    within = lqr.base_params.replace(c1=1.25e5, valve_wn_hz=0.0, xv_max=np.inf)  # held well within +-10 V
+    assert within.u_max == 10.0
+    limited, free = (linearize(within.replace(u_max=u), 0.0, friction="stick") for u in (10.0, np.inf))
+    np.testing.assert_array_equal(limited.A, free.A)  # so its design is the one it had
+    np.testing.assert_array_equal(limited.B, free.B)
+
+
 def test_lqr_oracle_runs_in_the_benchmark_loop_with_pressure_feedback():
     lqr = load_controller("lqr-oracle", "rolling")
     assert lqr.gain_map.dim == 4

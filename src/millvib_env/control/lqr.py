@@ -61,15 +61,19 @@ def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0, dt_s: f
     """(K, A_cl, A_aug, B_aug) of the scaled-coordinate design, K in SI units (V per unit state).
 
     The model is the plant's linearisation with the paper's ideal valve (the PID + pressure-feedback
-    structure has no spool feedback to give). With `dt_s` the design is discrete-time at that sample
-    period (the loop as commissioned: the augmented model sampled with a zero-order hold, and the
-    discrete Riccati equation); A_cl is then the discrete closed loop. The loop's computation delay
-    and the valve's lag are not in the model."""
+    structure has no spool feedback to give) and without the actuator's limits (stroke, amplifier): a plant
+    whose leakage takes more than the amplifier's +-u_max to hold (the startup task's high-leakage scenario on
+    v1: about 180 V) gets the design of its unlimited linearisation, and runs saturated. With `dt_s` the
+    design is discrete-time at that sample period (the loop as commissioned: the augmented model sampled with
+    a zero-order hold, and the discrete Riccati equation); A_cl is then the discrete closed loop. The loop's
+    computation delay and the valve's lag are not in the model."""
     instance("weights", weights, LQRWeights, "an LQRWeights")
     instance("params", params, MillParams, "a MillParams")
     if dt_s is not None:
         dt_s = real("dt_s", dt_s, lo=0.0, lo_open=True, hi=1.0)
-    ss = linearize(params.replace(valve_wn_hz=0.0, xv_max=math.inf), xd, friction=weights.friction)
+    # the design model is the plant without the actuator's limits (the spool's stroke and the amplifier's
+    # +-u_max): a leaky plant held by more than u_max would otherwise linearise with no input at all
+    ss = linearize(params.replace(valve_wn_hz=0.0, xv_max=math.inf, u_max=math.inf), xd, friction=weights.friction)
     A = np.zeros((4, 4))
     A[:3, :3] = ss.A
     A[3, 0] = -1.0  # d xi / dt = e = -(x - xd)
