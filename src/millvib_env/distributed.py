@@ -87,11 +87,10 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again: 1-3 CPU-s each,
     at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
     the first pool of this process, that imports the package, the module of the pool's function and the modules
-    in `preload` (torch for training) once; every
-    worker after that is a fork of it, so it starts with those modules imported and inherits no thread pool, torch
-    state or open file of this process (the server runs none). A worker runs in this process's current
-    environment (`_start_worker`) and working folder; a variable read when a module is imported (NUMBA_*) is the
-    server's, i.e. this process's when its first pool started."""
+    in `preload` (torch for training) once; every worker after that is a fork of it, so it starts with those
+    modules imported and inherits no thread pool, torch state or open file of this process (the server runs
+    none). A worker runs in this process's current environment (`_start_worker`) and working folder; a variable
+    read when a module is imported (NUMBA_*) is the server's, i.e. this process's when its first pool started."""
     if "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     ctx = mp.get_context("forkserver")
