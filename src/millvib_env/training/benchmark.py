@@ -235,9 +235,9 @@ def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[
 
 def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, env_id: str, ray: str | None,
                      progress: bool, processes: int = 1) -> dict[tuple, list[EpisodeRecord]]:
-    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as jobs of CHUNK
-    episodes on Ray or in `processes` local worker processes (each episode depends only on its seeds, so the
-    records are the same)."""
+    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as jobs (`_chunks`)
+    on Ray or in `processes` local worker processes (each episode depends only on its seeds, so the records are
+    the same)."""
     records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None or processes > 1:
         jobs = [{"name": n, "task": task, "seeds": chunk, "env_id": env_id, "agent_seed": s}
