@@ -9,8 +9,8 @@ from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.plant.integrate import simulate, simulate_batch
 
 #: s: covers the paper's transients and tens of limit-cycle periods (the shortest record that still has a
-#: severity and a motion class; the reference solver, scipy's LSODA calling Python per step, costs 60 ms of CPU
-#: per simulated ms here, so the span is what these checks cost)
+#: severity and a motion class; the reference solver costs up to 2 ms of CPU per simulated ms here, and
+#: solve_ivp's LSODA, calling Python per step, 7-25 times that, so the span is what these checks cost)
 T_CASES = 0.15
 
 
@@ -29,6 +29,19 @@ def test_reference_agrees_with_an_independent_method_on_the_paper_cases(paper_ca
     with np.errstate(invalid="ignore", over="ignore"):
         dop853 = simulate_batch(params, gains, 0.05, method="reference", ivp_method="DOP853", rtol=1e-10)
     for (label, _, _), a, b in zip(paper_cases, lsoda, dop853):
+        assert not a.diverged and not b.diverged
+        assert peak_error(a, b) <= 1e-6, label
+
+
+@pytest.mark.slow
+def test_the_compiled_reference_is_scipys_solve_ivp_lsoda_on_the_paper_cases(paper_cases):
+    # one method, two drivers: ODEPACK's LSODA run whole per segment in compiled code (the reference's default,
+    # scipy.integrate.odeint) and the same solver stepped from Python by solve_ivp; they agree to 9e-9 here
+    params = [p for _, p, _ in paper_cases]
+    gains = [g for _, _, g in paper_cases]
+    compiled = simulate_batch(params, gains, 0.05, method="reference")
+    stepped = simulate_batch(params, gains, 0.05, method="reference", ivp_method="LSODA")
+    for (label, _, _), a, b in zip(paper_cases, compiled, stepped):
         assert not a.diverged and not b.diverged
         assert peak_error(a, b) <= 1e-6, label
 
@@ -75,12 +88,16 @@ def test_batch_equals_one_at_a_time():
         assert np.array_equal(batch[i].x, simulate(ps[i], gs[i], 0.05).x)
 
 
-@pytest.mark.parametrize("method", ["fast", "reference"])
-def test_leaving_the_stroke_is_flagged_not_nan(method):
+@pytest.mark.parametrize("method, ivp_method", [("fast", "odeint"), ("reference", "odeint"), ("reference", "LSODA")])
+def test_leaving_the_stroke_is_flagged_not_nan(method, ivp_method):
     # a soft stand, 2 mm of stroke left above the start and a 5 mm set-point: the piston hits its end
     p = MillParams(k1=1e7, L=0.15 + 2e-3)
-    r = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method)
+    r = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method, ivp_method=ivp_method)
     assert r.diverged and 0 < r.t_diverged < 0.05
+    if method == "reference":  # the compiled driver hands the segment that leaves to solve_ivp's event location
+        other = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method,
+                         ivp_method="LSODA" if ivp_method == "odeint" else "odeint")
+        assert r.t_diverged == pytest.approx(other.t_diverged, abs=1e-6)
     before = r.t < r.t_diverged - 1e-4
     assert np.all(np.isfinite(r.x[before]))
     assert np.all(np.isnan(r.x[r.t > r.t_diverged + 1e-4]))
@@ -102,6 +119,7 @@ def test_setpoint_step_as_function_and_array_agree():
 @pytest.mark.parametrize("kwargs, match", [
     ({"t_end": -1.0}, "t_end"), ({"t_end": 0.1, "dt_out": 0.0}, "dt_out"),
     ({"t_end": 0.1, "method": "euler"}, "method"), ({"t_end": 0.1, "rtol": 1.0}, "rtol"),
+    ({"t_end": 0.1, "method": "reference", "ivp_method": "ode45"}, "ivp_method"),
     ({"t_end": 0.1, "x0": 0.5}, "x0"), ({"t_end": 0.1, "xd": np.zeros(7)}, "xd"),
     ({"t_end": 0.1, "xd": float("nan")}, "xd"),
 ])

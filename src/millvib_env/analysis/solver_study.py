@@ -54,7 +54,7 @@ SOLVERS = (
     SolverSetting("RK45 1e-4", "RK45", 1e-4, 1e-7),
     SolverSetting("RK45 1e-5", "RK45", 1e-5, 1e-8),
     SolverSetting("RK45 1e-6", "RK45", 1e-6, 1e-9),
-    SolverSetting("converged (LSODA 1e-10)", "LSODA", 1e-10, None),
+    SolverSetting("converged (LSODA 1e-10)", "odeint", 1e-10, None),  # ODEPACK's LSODA, compiled (`simulate`)
 )
 
 

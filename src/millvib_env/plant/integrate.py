@@ -2,8 +2,10 @@
 
 * ``method="fast"``: the compiled adaptive Bogacki-Shampine 3(2) kernel (`kernel.py`), batched
   over plants with numba threads; no Python per time step.
-* ``method="reference"``: `scipy.integrate.solve_ivp` at tight tolerances (LSODA by default;
-  ``ivp_method="RK45"`` is the paper's ode45, Radau/BDF/DOP853 also accepted).
+* ``method="reference"``: LSODA at tight tolerances. By default ODEPACK's LSODA runs each set-point
+  segment whole in compiled code (`scipy.integrate.odeint`), calling the compiled right-hand side;
+  ``ivp_method`` names a `scipy.integrate.solve_ivp` method instead ("LSODA", the same solver driven
+  a step at a time from Python, 7-25x slower; "RK45", the paper's ode45; Radau, BDF, DOP853, RK23).
 
 Both call the same right-hand side (`model.plant_rhs`), sample on the same grid
 ``t_k = k * dt_out`` and return the same `SimResult`. A run that leaves the physical envelope
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Sequence, Union
 
@@ -38,6 +41,8 @@ DEFAULT_RTOL_REFERENCE = 1e-9
 DEFAULT_DT_OUT = 1e-4  # s: 10 kHz samples, Nyquist 5 kHz, well above the 1 kHz severity band
 P_MAX_FACTOR = 10.0  # |pL| above 10 x the mean supply pressure is reported as divergence
 MAX_STEPS_PER_SECOND = 2_000_000
+_ODEINT_MXSTEP = 50_000  # LSODA's steps per output interval before it stops (then solve_ivp takes the segment)
+IVP_METHODS = ("odeint", "LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF")  # odeint: ODEPACK's LSODA, whole
 
 
 @dataclass
@@ -289,7 +294,7 @@ def _check_rtol(rtol: float) -> float:
 # --- public API ---------------------------------------------------------------------------------
 def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_end: float = 0.5, *,
              x0: float = 1.0e-3, xd: XdSpec = 0.0, method: str = "fast", dt_out: float = DEFAULT_DT_OUT,
-             rtol: float | None = None, ivp_method: str = "LSODA", u_ext: float = 0.0,
+             rtol: float | None = None, ivp_method: str = "odeint", u_ext: float = 0.0,
              pid_on: bool = True, y0: np.ndarray | None = None, change: PlantChange | None = None,
              ivp_options: dict | None = None) -> SimResult:
     """Simulate one closed-loop plant from the paper's initial state.
@@ -301,14 +306,16 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     x0 : initial displacement (m); the plant starts at rest with zero acceleration (docs/model.md).
     xd : set-point (m): a constant, a function of t, or samples on the output grid (held between
         samples; the integration restarts at every change).
-    method : "fast" (compiled BS3(2)) or "reference" (solve_ivp with `ivp_method`).
+    method : "fast" (compiled BS3(2)) or "reference" (LSODA; `ivp_method`).
     rtol : relative tolerance (default 1e-6 fast, 1e-9 reference); atol = rtol * state_scale.
     u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
     y0 : full initial state (`model.STATES`: x, v, pL, z, uI, xs, vs), overriding x0.
     change : a change of c1 and Ct during the run (`PlantChange`), integrated by the same equations.
+    ivp_method : reference method only: "odeint" (ODEPACK's LSODA, each segment in compiled code) or a
+        `solve_ivp` method ("LSODA", "RK45" = MATLAB's ode45, "RK23", "DOP853", "Radau", "BDF").
     ivp_options : reference method only: ``atol`` (scalar or per state, replacing rtol * state
-        scale) and ``max_step`` (s) for `solve_ivp`, e.g. MATLAB ode45's defaults
-        ``{"atol": 1e-6}`` with ``rtol=1e-3``.
+        scale) and ``max_step`` (s), e.g. MATLAB ode45's defaults ``{"atol": 1e-6}`` with
+        ``rtol=1e-3``.
 
     With ``gains.kpl > 0`` the pressure feedback acts on pL - pL(0): the reference is the initial
     chamber pressure.
@@ -327,7 +334,7 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
 def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | Sequence[PIDGains],
                    t_end: float = 0.5, *, x0: float | np.ndarray = 1.0e-3, xd: XdSpec = 0.0,
                    method: str = "fast", dt_out: float = DEFAULT_DT_OUT, rtol: float | None = None,
-                   ivp_method: str = "LSODA", u_ext: float = 0.0, pid_on: bool = True,
+                   ivp_method: str = "odeint", u_ext: float = 0.0, pid_on: bool = True,
                    y0: np.ndarray | None = None, progress: bool = False,
                    change: PlantChange | Sequence[PlantChange | None] | None = None,
                    ivp_options: dict | None = None) -> BatchResult:
@@ -373,6 +380,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
                                      YS, status, t_fail, n_steps)
     elif method == "reference":
         rtol = _check_rtol(DEFAULT_RTOL_REFERENCE if rtol is None else rtol)
+        choice("ivp_method", ivp_method, IVP_METHODS)
         options = dict(ivp_options or {})
         unknown = set(options) - {"atol", "max_step"}
         if unknown:
@@ -404,6 +412,39 @@ def _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method, p_max, progress,
     return YS, status, t_fail, n_steps
 
 
+class _LeftEnvelope(Exception):
+    """Raised from odeint's right-hand side when a state it tries is outside the physical envelope."""
+
+
+def _odeint_segment(p, c, y, ts, rtol, atol, lo, hi, p_max, options):
+    """One set-point segment by ODEPACK's LSODA, run whole in compiled code (`scipy.integrate.odeint`),
+    calling the compiled `plant_rhs`: the samples ``ts[1:]`` and the number of evaluations, or None where a
+    state it tried left the envelope or LSODA stopped (the caller then runs the segment with solve_ivp's
+    event location, which finds the time it left)."""
+    from scipy.integrate import odeint
+
+    def rhs(yy, tt):
+        x = yy[IX]
+        if not (lo < x < hi and abs(yy[IPL]) < p_max):  # False for NaN too
+            raise _LeftEnvelope
+        return kernel.rhs_vector(tt, yy, p, c)
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a failed call is reported by istate and handled below
+            ys, info = odeint(rhs, y, ts, rtol=rtol, atol=atol, full_output=True, mxstep=_ODEINT_MXSTEP,
+                              hmax=float(options.get("max_step", 0.0)), tcrit=ts[-1:])
+    except _LeftEnvelope:
+        return None
+    out = ys[1:]
+    if info["message"] != "Integration successful." or not np.all(np.isfinite(out)):
+        return None
+    x = out[:, IX]
+    if not (np.all((x > lo) & (x < hi)) and np.all(np.abs(out[:, IPL]) < p_max)):
+        return None
+    return out, int(info["nfe"][-1])
+
+
 def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
     from scipy.integrate import solve_ivp  # here: over a second of imports that only the reference needs
 
@@ -431,8 +472,17 @@ def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
             j1 += 1
         c = c0.copy()
         c[C_XD] = xd[j0]
-        sol = solve_ivp(rhs, (t[j0], t[j1]), y, method=ivp_method, t_eval=t[j0 + 1:j1 + 1], rtol=rtol,
-                        atol=atol, args=(c,), events=inside_envelope, **extra)
+        if ivp_method == "odeint":
+            seg = _odeint_segment(p, c, y, t[j0:j1 + 1], rtol, atol, lo, hi, p_max, options)
+            if seg is not None:
+                out[j0 + 1:j1 + 1], evals = seg
+                n_evals += evals
+                y = out[j1].copy()
+                j0 = j1
+                continue
+        # a solve_ivp method, or the segment in which the state leaves the envelope: the event finds when
+        sol = solve_ivp(rhs, (t[j0], t[j1]), y, method="LSODA" if ivp_method == "odeint" else ivp_method,
+                        t_eval=t[j0 + 1:j1 + 1], rtol=rtol, atol=atol, args=(c,), events=inside_envelope, **extra)
         n_evals += sol.nfev
         m = sol.y.shape[1]
         out[j0 + 1:j0 + 1 + m] = sol.y.T
