@@ -18,3 +18,10 @@ def what_a_worker_sees(name: str) -> tuple:
     import signal
 
     return os.environ.get(name), os.getcwd(), signal.getsignal(signal.SIGINT) is signal.SIG_IGN, os.getpid()
+
+
+def modules_a_worker_has(names: list) -> list:
+    """Whether each module in `names` is imported in this worker when its job starts."""
+    import sys
+
+    return [n in sys.modules for n in names]

@@ -82,6 +82,18 @@ def test_a_failing_job_stops_the_other_workers_instead_of_waiting_for_them(tmp_p
     assert not list(tmp_path.glob("finished-*"))
 
 
+def test_a_pool_that_asks_for_more_modules_gets_workers_that_have_them_imported():
+    """A later pool whose `preload` the running fork server lacks (torch, after a pool of baselines) restarts it:
+    its workers start with the module imported instead of each importing it."""
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import modules_a_worker_has
+
+    module = "xml.dom.minidom"  # imported by neither the package nor the tests
+    run_jobs(modules_a_worker_has, [{"names": [module]}] * 2, processes=2)
+    assert run_jobs(modules_a_worker_has, [{"names": [module]}] * 2, processes=2,
+                    preload=(module,)) == [[True]] * 2
+
+
 def test_a_worker_runs_in_the_callers_environment_and_folder_as_they_are_at_each_pool(tmp_path, monkeypatch):
     """The workers are forks of a fork server that started with the first pool (`distributed._pool_context`):
     each still sees the caller's environment variables and working folder of the moment, and ignores Ctrl-C."""

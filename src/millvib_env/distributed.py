@@ -81,6 +81,10 @@ def _start_worker(environ: dict[str, str]) -> None:
     os.environ.update(environ)
 
 
+#: the modules the running fork server imported (`_pool_context`); empty before this process's first pool
+_server_modules: set[str] = set()
+
+
 def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     """How the workers start: from multiprocessing's fork server where the platform has one (POSIX), else spawned.
 
@@ -89,12 +93,21 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     the first pool of this process, that imports the package, the module of the pool's function and the modules
     in `preload` (torch for training) once; every worker after that is a fork of it, so it starts with those
     modules imported and inherits no thread pool, torch state or open file of this process (the server runs
-    none). A worker runs in this process's current environment (`_start_worker`) and working folder; a variable
-    read when a module is imported (NUMBA_*) is the server's, i.e. this process's when its first pool started."""
+    none). A later pool that asks for a module the server has not imported (training after a benchmark of
+    baselines, in one session) restarts it with every module asked for so far, so that its workers do not each
+    import torch. A worker runs in this process's current environment (`_start_worker`) and working folder; a
+    variable read when a module is imported (NUMBA_*) is the server's, i.e. this process's when it started."""
     if "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
+    from multiprocessing import forkserver
+
     ctx = mp.get_context("forkserver")
-    ctx.set_forkserver_preload(["millvib_env", fn.__module__, *preload])  # read when the server starts
+    if _server_modules and not set(preload) <= _server_modules:
+        stop = getattr(forkserver._forkserver, "_stop", None)  # CPython's own (3.8-3.13); else workers import
+        if stop is not None:
+            stop()  # the next pool's first worker starts a new server; running workers are not touched
+    _server_modules.update(["millvib_env", fn.__module__, *preload])
+    ctx.set_forkserver_preload(sorted(_server_modules))  # read when the server starts
     return ctx
 
 
