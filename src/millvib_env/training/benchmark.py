@@ -162,10 +162,12 @@ CHUNK = 50
 
 
 def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, progress: bool = False,
-                own: Mapping[str, Controller] | None = None) -> tuple[list[tuple[str, int | None]], dict]:
+                own: Mapping[str, Controller] | None = None,
+                here: bool = True) -> tuple[list[tuple[str, int | None]], dict]:
     """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`); a user's `own` controllers as
-    they are."""
+    they are. Where the runs go to workers (`here` False) only each agent's lowest seed is loaded in this
+    process (for its environment and the named scenarios): the workers load the seeds they run."""
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
@@ -178,7 +180,10 @@ def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, pro
         if first.card is not None:
             for s in (agent_seeds(n) if all_seeds else [first.seed]):
                 units.append((n, s))
-                loaded[(n, s)] = first if s == first.seed else load_controller(n, task, seed=s)
+                if s == first.seed:
+                    loaded[(n, s)] = first
+                elif here:
+                    loaded[(n, s)] = load_controller(n, task, seed=s)
         else:
             units.append((n, None))
             loaded[(n, None)] = first
@@ -305,7 +310,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if reference not in names:
         load_controller(reference, t, version=env_version)  # an unknown name fails here, in one line
         names = [reference] + names
-    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own)
+    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     cfg = t.env_config(env_version)
@@ -318,7 +323,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
                      unit="controller", disable=not progress, leave=False):
         recs = [r for (n, _), part in records.items() if n == name for r in part]
-        first = loaded[next(u for u in units if u[0] == name)]
+        first = loaded[next(u for u in units if u[0] == name and u in loaded)]
         summary = summarize(recs)
         summary["env_id"] = first.env_id
         result["controllers"][name] = summary
