@@ -188,3 +188,62 @@ def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
         batch.reset([0, 1])
         obs = batch.step(np.zeros((2, batch.core.act_dim)))[0]
         assert np.all(np.isfinite(obs))
+
+
+def _numpy_estimator_period(est, state, sig):
+    """`PlantEstimator.update` written with numpy and scipy calls (as it was before it was compiled): the reference
+    the compiled period is held against. `state`: this environment's sums and filter states, updated."""
+    from scipy import signal as ssig
+
+    from millvib_env.control.adaptive import model_acceleration
+
+    p, dt = est.params, 1.0 / est.fs
+    m = sig["x"].size
+    decay = np.exp(-m * dt / est.settings.tau_s)
+    cols = [sig[k] for k in ("t", "x", "v", "pL", "u")]
+    if state["last"] is not None:
+        cols = [np.concatenate([[prev], col]) for prev, col in zip(state["last"], cols)]
+    a_model, ql = np.empty(cols[0].size), np.empty(cols[0].size)
+    state["z"] = model_acceleration(*cols, state["z"], est.p_model, a_model, ql)
+    a_model, ql = a_model[-m:], ql[-m:]
+    state["last"] = tuple(col[-1] for col in cols)
+    net, comp, lk = ql - p.Ap * sig["v"], p.Ap * (p.L1 + sig["x"]) / p.beta_e, sig["pL"] - p.pb
+    pl = sig["pL"]
+    if state["prev"] is not None:
+        net, comp, lk, pl = (np.concatenate([[a], b]) for a, b in zip(state["prev"], (net, comp, lk, pl)))
+    lhs = np.sum(0.5 * (net[1:] + net[:-1]) * dt - 0.5 * (comp[1:] + comp[:-1]) * np.diff(pl))
+    rhs = np.sum(0.5 * (lk[1:] + lk[:-1]) * dt)
+    state["ct"] = (decay * state["ct"][0] + lhs * rhs, decay * state["ct"][1] + rhs * rhs)
+    state["prev"] = (net[-1], comp[-1], lk[-1], pl[-1])
+    force = p.mt * (a_model - sig["a"]) - (sig["FL"] - p.FL)
+    phi, state["zi"][0] = ssig.sosfilt(est.sos, sig["v"] / est.V_SCALE, zi=state["zi"][0])
+    rhs_f, state["zi"][1] = ssig.sosfilt(est.sos, force, zi=state["zi"][1])
+    state["R"] = (decay * state["R"][0] + phi @ phi, decay * state["R"][1] + phi @ rhs_f)
+
+
+def test_the_compiled_adaptive_estimator_is_its_numpy_and_scipy_arithmetic():
+    # the compiled period (`adaptive._estimate_period`) repeats the numpy and scipy calls operation for operation;
+    # held here against them on an episode's recorded signals (4 environments, from the first period on), to
+    # 1e-12 relative: where the libraries' sums or dot products round differently on another processor
+    ctrl = load_controller("pid-adaptive", "rolling")
+    est = ctrl.estimator
+    periods = []
+
+    class Recorder(type(ctrl)):
+        def on_step(self, infos):
+            periods.append([{k: np.array(v) for k, v in info["signals"].items()} for info in infos])
+            super().on_step(infos)
+
+    ctrl.__class__ = Recorder
+    run_episodes(ctrl, [110_000, 110_001, 110_002, 110_003], task="rolling")
+    n_env = len(periods[0])
+    est.reset_all(n_env)
+    states = [{"last": None, "prev": None, "z": 0.0, "ct": (0.0, 0.0), "R": (0.0, 0.0),
+               "zi": np.zeros((2, est.sos.shape[0], 2))} for _ in range(n_env)]
+    for sigs in periods[:200]:
+        for i, sig in enumerate(sigs):
+            est.update(i, sig)
+            _numpy_estimator_period(est, states[i], sig)
+            want = np.array([*states[i]["ct"], *states[i]["R"], states[i]["z"]])
+            np.testing.assert_allclose([*est.acc[i], est.z[i]], want, rtol=1e-12, atol=0.0)
+    assert all(np.isfinite(est.c1_hat)) and all(np.isfinite(est.ct_hat))  # the episode moved the plant

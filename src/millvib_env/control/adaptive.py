@@ -38,6 +38,7 @@ from scipy import signal as ssig
 from millvib_env._checks import as_float, shown
 from millvib_env.control.base import GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
+from millvib_env.envs.period import pairwise_sum, sosfilt_into
 from millvib_env.params import MillParams
 from millvib_env.plant.model import A_QL, C_UEXT, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
 
@@ -80,6 +81,63 @@ def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
     return z
 
 
+@njit(cache=True)
+def _estimate_period(t, x, v, pL, u, a, FL, last, has_last, z0, flow_prev, has_prev, acc, zi, sos, p_model,
+                     consts, decay, dt):
+    """One environment's period of `PlantEstimator.update`, compiled: the same operations in the same order as
+    the numpy and scipy calls it replaces (numpy's pairwise sums, scipy's sosfilt, the same dot products), so
+    the same numbers. `last` (t, x, v, pL, u) and `flow_prev` (net flow, compliance, leak pressure, pL): the
+    previous period's last samples, used where `has_last` / `has_prev`, and overwritten. `acc`: the forgotten
+    sums (ct_num, ct_den, R, r), updated; `zi`: the two high-passes' section states, updated. Returns the bristle
+    state after the last sample."""
+    ap, l1, beta_e, pb = consts[0], consts[1], consts[2], consts[3]
+    mt, fl0, v_scale = consts[4], consts[5], consts[6]
+    m = x.shape[0]
+    j = 1 if has_last else 0
+    n = m + j
+    ct, cx, cv, cp, cu = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    if has_last:
+        ct[0], cx[0], cv[0], cp[0], cu[0] = last[0], last[1], last[2], last[3], last[4]
+    ct[j:], cx[j:], cv[j:], cp[j:], cu[j:] = t, x, v, pL, u
+    a_model, ql = np.empty(n), np.empty(n)
+    z = model_acceleration(ct, cx, cv, cp, cu, z0, p_model, a_model, ql)
+    last[0], last[1], last[2], last[3], last[4] = ct[n - 1], cx[n - 1], cv[n - 1], cp[n - 1], cu[n - 1]
+    # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
+    k = 1 if has_prev else 0
+    net, comp, lk, pl = np.empty(m + k), np.empty(m + k), np.empty(m + k), np.empty(m + k)
+    if has_prev:
+        net[0], comp[0], lk[0], pl[0] = flow_prev[0], flow_prev[1], flow_prev[2], flow_prev[3]
+    for i in range(m):
+        net[k + i] = ql[j + i] - ap * v[i]
+        comp[k + i] = ap * (l1 + x[i]) / beta_e
+        lk[k + i] = pL[i] - pb
+        pl[k + i] = pL[i]
+    if m + k > 1:
+        terms = np.empty(m + k - 1)
+        for i in range(m + k - 1):
+            terms[i] = 0.5 * (net[i + 1] + net[i]) * dt - 0.5 * (comp[i + 1] + comp[i]) * (pl[i + 1] - pl[i])
+        lhs = pairwise_sum(terms, m + k - 1)
+        for i in range(m + k - 1):
+            terms[i] = 0.5 * (lk[i + 1] + lk[i]) * dt
+        rhs = pairwise_sum(terms, m + k - 1)
+        acc[0] = decay * acc[0] + lhs * rhs
+        acc[1] = decay * acc[1] + rhs * rhs
+    last_k = m + k - 1
+    flow_prev[0], flow_prev[1], flow_prev[2], flow_prev[3] = net[last_k], comp[last_k], lk[last_k], pl[last_k]
+    # damping: the force balance's residual against the model without damping, high-passed
+    force = np.empty(m)
+    scaled = np.empty(m)
+    for i in range(m):
+        force[i] = mt * (a_model[j + i] - a[i]) - (FL[i] - fl0)
+        scaled[i] = v[i] / v_scale
+    phi, rhs_f = np.empty(m), np.empty(m)
+    sosfilt_into(sos, scaled, zi[0], phi)
+    sosfilt_into(sos, force, zi[1], rhs_f)
+    acc[2] = decay * acc[2] + np.dot(phi, phi)
+    acc[3] = decay * acc[3] + np.dot(phi, rhs_f)
+    return z
+
+
 @dataclass(frozen=True)
 class EstimatorSettings:
     """tau_s: forgetting time constant (s); highpass_hz: high-pass of the damping regression;
@@ -108,82 +166,60 @@ class PlantEstimator:
     def __init__(self, params: MillParams, settings: EstimatorSettings, sample_rate_hz: float = 10_000.0):
         self.params, self.settings, self.fs = params, settings, sample_rate_hz
         self.p_model = pack(params.replace(c1=0.0))  # valve flow gain Cd W sqrt(2/rho) Ksv Kp1 (data sheet)
-        self.sos = ssig.butter(2, settings.highpass_hz, btype="highpass", fs=sample_rate_hz, output="sos")
+        self.sos = np.ascontiguousarray(ssig.butter(2, settings.highpass_hz, btype="highpass", fs=sample_rate_hz,
+                                                    output="sos"))
+        self._consts = np.array([params.Ap, params.L1, params.beta_e, params.pb, params.mt, params.FL, self.V_SCALE])
         self.n = 0
         self.reset_all(0)
 
     def reset_all(self, n: int) -> None:
         self.n = n
-        self.R = np.zeros(n)
-        self.r = np.zeros(n)
         self.z = np.zeros(n)
-        self.ct_num = np.zeros(n)
-        self.ct_den = np.zeros(n)
+        self.acc = np.zeros((n, 4))  # the forgotten sums: ct_num, ct_den, R (damping information), r
         self.zi = np.zeros((n, 2, self.sos.shape[0], 2))
         self.c1_hat = np.full(n, np.nan)
         self.ct_hat = np.full(n, np.nan)
-        self.flow_prev: list = [None] * n
-        self.last: list = [None] * n
+        self.flow_prev = np.zeros((n, 4))  # the previous period's last net flow, compliance, leak pressure, pL
+        self.has_prev = np.zeros(n, dtype=bool)
+        self.last = np.zeros((n, 5))  # the previous period's last t, x, v, pL, u
+        self.has_last = np.zeros(n, dtype=bool)
         self.err_c1: list[list[float]] = [[] for _ in range(n)]
         self.err_ct: list[list[float]] = [[] for _ in range(n)]
 
     def grow(self, n: int) -> None:
         if n <= self.n:
             return
-        names = ("R", "r", "z", "ct_num", "ct_den", "zi", "c1_hat", "ct_hat", "flow_prev", "last", "err_c1", "err_ct")
+        names = ("z", "acc", "zi", "c1_hat", "ct_hat", "flow_prev", "has_prev", "last", "has_last", "err_c1",
+                 "err_ct")
         old, k = {name: getattr(self, name) for name in names}, self.n
         self.reset_all(n)
         for name in names:
             getattr(self, name)[:k] = old[name]
 
     def start(self, i: int) -> None:
-        self.R[i] = self.r[i] = self.z[i] = 0.0
-        self.ct_num[i] = self.ct_den[i] = 0.0
+        self.z[i] = 0.0
+        self.acc[i] = 0.0
         self.zi[i] = 0.0
         self.c1_hat[i] = self.ct_hat[i] = np.nan
-        self.flow_prev[i] = None
+        self.has_prev[i] = self.has_last[i] = False
         self.err_c1[i], self.err_ct[i] = [], []
-        self.last[i] = None
 
     def update(self, i: int, sig: dict) -> None:
-        p, dt = self.params, 1.0 / self.fs
         m = sig["x"].size
         if m >= 2 and abs((sig["t"][1] - sig["t"][0]) * self.fs - 1.0) > 1e-6:
             raise ValueError(f"pid-adaptive's estimator runs at {self.fs:g} Hz but the signals are sampled at "
                              f"{1.0 / (sig['t'][1] - sig['t'][0]):g} Hz: build it with the env's sample_rate_hz")
+        dt = 1.0 / self.fs
         decay = math.exp(-m * dt / self.settings.tau_s)
-        cols = [sig[k] for k in ("t", "x", "v", "pL", "u")]
-        if self.last[i] is not None:  # continue the bristle integration from the previous period's last sample
-            cols = [np.concatenate([[prev], col]) for prev, col in zip(self.last[i], cols)]
-        a_model, ql = np.empty(cols[0].size), np.empty(cols[0].size)
-        self.z[i] = model_acceleration(*cols, self.z[i], self.p_model, a_model, ql)  # type: ignore[call-arg]
-        a_model, ql = a_model[-m:], ql[-m:]
-        self.last[i] = tuple(col[-1] for col in cols)
-        # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
-        net = ql - p.Ap * sig["v"]
-        comp = p.Ap * (p.L1 + sig["x"]) / p.beta_e  # oil compliance V / beta_e
-        lk = sig["pL"] - p.pb
-        prev = self.flow_prev[i]
-        if prev is not None:
-            net, comp, lk, pl = (np.concatenate([[a], b]) for a, b in zip(prev, (net, comp, lk, sig["pL"])))
-        else:
-            pl = sig["pL"]
-        if pl.size > 1:
-            lhs = np.sum(0.5 * (net[1:] + net[:-1]) * dt - 0.5 * (comp[1:] + comp[:-1]) * np.diff(pl))
-            rhs = np.sum(0.5 * (lk[1:] + lk[:-1]) * dt)
-            self.ct_num[i] = decay * self.ct_num[i] + lhs * rhs
-            self.ct_den[i] = decay * self.ct_den[i] + rhs * rhs
-        self.flow_prev[i] = (net[-1], comp[-1], lk[-1], pl[-1])
-        if self.ct_den[i] > 0:
-            self.ct_hat[i] = float(np.clip(self.ct_num[i] / self.ct_den[i], *self.CT_RANGE))
-        # damping: the force balance's residual against the model without damping, high-passed
-        force = p.mt * (a_model - sig["a"]) - (sig["FL"] - p.FL)
-        phi, self.zi[i, 0] = ssig.sosfilt(self.sos, sig["v"] / self.V_SCALE, zi=self.zi[i, 0])
-        rhs_f, self.zi[i, 1] = ssig.sosfilt(self.sos, force, zi=self.zi[i, 1])
-        self.R[i] = decay * self.R[i] + phi @ phi
-        self.r[i] = decay * self.r[i] + phi @ rhs_f
-        if self.R[i] >= self.settings.min_info:
-            self.c1_hat[i] = float(np.clip(self.r[i] / self.R[i] / self.V_SCALE, *self.C1_RANGE))
+        self.z[i] = _estimate_period(sig["t"], sig["x"], sig["v"], sig["pL"], sig["u"], sig["a"], sig["FL"],
+                                     self.last[i], self.has_last[i], self.z[i], self.flow_prev[i], self.has_prev[i],
+                                     self.acc[i], self.zi[i], self.sos, self.p_model, self._consts, decay, dt)
+        self.has_last[i] = self.has_prev[i] = True
+        ct_num, ct_den, info, r = self.acc[i]
+        if ct_den > 0:
+            self.ct_hat[i] = float(np.clip(ct_num / ct_den, *self.CT_RANGE))
+        if info >= self.settings.min_info:
+            self.c1_hat[i] = float(np.clip(r / info / self.V_SCALE, *self.C1_RANGE))
 
     def record_error(self, i: int, c1: float, ct: float) -> None:
         if math.isfinite(self.c1_hat[i]):

@@ -21,7 +21,7 @@ from numba import njit
 
 from millvib_env.plant.model import A_ACC, A_QL, A_U, A_XV, IPL, IV, IX
 
-__all__ = ["summarize_period", "record_actuator", "pairwise_sum"]
+__all__ = ["summarize_period", "record_actuator", "pairwise_sum", "sosfilt_into"]
 
 #: numpy's unrolled block of its pairwise summation (numpy/_core/src/umath/loops_utils.h.src)
 _PW_BLOCKSIZE = 128
@@ -53,6 +53,20 @@ def _block_sum(a, lo, n):
         res += a[lo + i]
         i += 1
     return res
+
+
+@njit(cache=True)
+def sosfilt_into(sos, x, zi, out):
+    """``out[:], zi[:] = scipy.signal.sosfilt(sos, x, zi=zi)`` for one signal, the same arithmetic in the same
+    order (transposed direct form II, section after section, per sample), so the same bits."""
+    for k in range(x.shape[0]):
+        x_cur = x[k]
+        for s in range(sos.shape[0]):
+            x_new = sos[s, 0] * x_cur + zi[s, 0]
+            zi[s, 0] = sos[s, 1] * x_cur - sos[s, 4] * x_new + zi[s, 1]
+            zi[s, 1] = sos[s, 2] * x_cur - sos[s, 5] * x_new
+            x_cur = x_new
+        out[k] = x_cur
 
 
 @njit(cache=True)
