@@ -27,7 +27,7 @@ import numpy as np
 from millvib_env._checks import as_float, choice, instance, real, shown
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NY, P_L, P_L1, STATE_NAMES, STATES,
+from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NAUX, NY, P_L, P_L1, STATE_NAMES, STATES,
                                      PlantChange, drive_vector, initial_state, pack, state_scale)
 from millvib_env.severity import Quantity, iso_zone, vibration_severity
 
@@ -423,11 +423,14 @@ def _odeint_segment(p, c, y, ts, rtol, atol, lo, hi, p_max, options):
     event location, which finds the time it left)."""
     from scipy.integrate import odeint
 
+    dy, aux = np.empty(NY), np.empty(NAUX)  # odeint copies the derivative out before its next call
+
     def rhs(yy, tt):
         x = yy[IX]
         if not (lo < x < hi and abs(yy[IPL]) < p_max):  # False for NaN too
             raise _LeftEnvelope
-        return kernel.rhs_vector(tt, yy, p, c)
+        kernel.rhs_into(tt, yy, p, c, dy, aux)
+        return dy
 
     try:
         with warnings.catch_warnings():

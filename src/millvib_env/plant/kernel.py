@@ -284,6 +284,13 @@ def aux_at(T, Y, p, c0, xd):
 
 
 @njit(cache=True)
+def rhs_into(t, y, p, c, dy, aux):
+    """plant_rhs into the caller's dy (and aux): for a solver that calls it from Python per evaluation
+    (the reference's odeint), where allocating and returning a new array costs as much as the equations."""
+    plant_rhs(t, y, p, c, dy, aux)
+
+
+@njit(cache=True)
 def rhs_vector(t, y, p, c):
     """plant_rhs returning a new derivative array (for scipy's solve_ivp and the linearisation)."""
     dy = np.empty(NY)
@@ -293,4 +300,4 @@ def rhs_vector(t, y, p, c):
 
 
 __all__ = ["advance", "advance_one", "advance_batch", "simulate_one", "simulate_batch_kernel", "aux_at",
-           "rhs_vector", "STATUS_TEXT"]
+           "rhs_vector", "rhs_into", "STATUS_TEXT"]
