@@ -10,7 +10,7 @@ from millvib_env.plant.integrate import simulate, simulate_batch
 
 #: s: covers the paper's transients and tens of limit-cycle periods (the shortest record that still has a
 #: severity and a motion class; the reference solver costs up to 2 ms of CPU per simulated ms here, and
-#: solve_ivp's LSODA, calling Python per step, 3-10 times that, so the span is what these checks cost)
+#: solve_ivp's LSODA, calling Python per step, 5-10 times that, so the span is what these checks cost)
 T_CASES = 0.15
 
 
