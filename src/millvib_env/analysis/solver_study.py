@@ -113,17 +113,18 @@ def run_solver_study(t_end: float = 1.0, solvers=SOLVERS, progress: bool = True,
     if cases is None:
         cases = [(study, case) for study in PAPER_STUDIES for case in study.cases]
     wanted = [(study, case, s) for study, case in cases for s in solvers]
-    # one run per plant, gains and setting: three of the nine cases are the nominal plant at the paper's gains
-    job_of = {key: i for i, key in enumerate(dict.fromkeys((case.params, case.gains, s) for _, case, s in wanted))}
+    # one run per plant, gains and setting (three of the nine cases are the nominal plant at the paper's gains):
+    # the first (study, case) that asks for it
     first: dict = {}
     for study, case, s in wanted:
         first.setdefault((case.params, case.gains, s), (study, case))
-    jobs = [{"study_key": first[key][0].key, "case": first[key][1], "setting": key[2], "t_end": t_end,
-             "keep": keep_runs and key[2] in (solvers[0], solvers[-1])} for key in job_of]
-    done = run_jobs(_solver_job, jobs, processes=processes, progress=progress, desc="solver study")
+    jobs = [{"study_key": study.key, "case": case, "setting": key[2], "t_end": t_end,
+             "keep": keep_runs and key[2] in (solvers[0], solvers[-1])} for key, (study, case) in first.items()]
+    done = dict(zip(first, run_jobs(_solver_job, jobs, processes=processes, progress=progress,
+                                    desc="solver study")))
     rows, runs = [], {}
     for study, case, s in wanted:
-        row, run = done[job_of[(case.params, case.gains, s)]]
+        row, run = done[(case.params, case.gains, s)]
         row = replace(row, case=case.label, study=study.key)
         rows.append(row)
         if run is not None:
