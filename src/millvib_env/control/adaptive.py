@@ -82,48 +82,46 @@ def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
 
 
 @njit(cache=True)
-def _estimate_period(t, x, v, pL, u, a, FL, last, has_last, z0, flow_prev, has_prev, acc, zi, sos, p_model,
-                     consts, decay, dt):
+def _estimate_period(t, x, v, pL, u, a, FL, last, z0, flow_prev, has_prev, acc, zi, sos, p_model, consts, decay,
+                     dt):
     """One environment's period of `PlantEstimator.update`, compiled: the same operations in the same order as
     the numpy and scipy calls it replaces (numpy's pairwise sums, scipy's sosfilt, the same dot products), so
     the same numbers. `last` (t, x, v, pL, u) and `flow_prev` (net flow, compliance, leak pressure, pL): the
-    previous period's last samples, used where `has_last` / `has_prev`, and overwritten. `acc`: the forgotten
-    sums (ct_num, ct_den, R, r), updated; `zi`: the two high-passes' section states, updated. Returns the bristle
-    state after the last sample."""
+    previous period's last samples, used where `has_prev` (every period but an episode's first), and
+    overwritten. `acc`: the forgotten sums (ct_num, ct_den, R, r), updated; `zi`: the two high-passes' section
+    states, updated. Returns the bristle state after the last sample."""
     ap, l1, beta_e, pb = consts[0], consts[1], consts[2], consts[3]
     mt, fl0, v_scale = consts[4], consts[5], consts[6]
     m = x.shape[0]
-    j = 1 if has_last else 0
+    j = 1 if has_prev else 0
     n = m + j
     ct, cx, cv, cp, cu = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    if has_last:
+    if has_prev:
         ct[0], cx[0], cv[0], cp[0], cu[0] = last[0], last[1], last[2], last[3], last[4]
     ct[j:], cx[j:], cv[j:], cp[j:], cu[j:] = t, x, v, pL, u
     a_model, ql = np.empty(n), np.empty(n)
     z = model_acceleration(ct, cx, cv, cp, cu, z0, p_model, a_model, ql)
     last[0], last[1], last[2], last[3], last[4] = ct[n - 1], cx[n - 1], cv[n - 1], cp[n - 1], cu[n - 1]
     # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
-    k = 1 if has_prev else 0
-    net, comp, lk, pl = np.empty(m + k), np.empty(m + k), np.empty(m + k), np.empty(m + k)
+    net, comp, lk, pl = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     if has_prev:
         net[0], comp[0], lk[0], pl[0] = flow_prev[0], flow_prev[1], flow_prev[2], flow_prev[3]
     for i in range(m):
-        net[k + i] = ql[j + i] - ap * v[i]
-        comp[k + i] = ap * (l1 + x[i]) / beta_e
-        lk[k + i] = pL[i] - pb
-        pl[k + i] = pL[i]
-    if m + k > 1:
-        terms = np.empty(m + k - 1)
-        for i in range(m + k - 1):
+        net[j + i] = ql[j + i] - ap * v[i]
+        comp[j + i] = ap * (l1 + x[i]) / beta_e
+        lk[j + i] = pL[i] - pb
+        pl[j + i] = pL[i]
+    if n > 1:
+        terms = np.empty(n - 1)
+        for i in range(n - 1):
             terms[i] = 0.5 * (net[i + 1] + net[i]) * dt - 0.5 * (comp[i + 1] + comp[i]) * (pl[i + 1] - pl[i])
-        lhs = pairwise_sum(terms, m + k - 1)
-        for i in range(m + k - 1):
+        lhs = pairwise_sum(terms, n - 1)
+        for i in range(n - 1):
             terms[i] = 0.5 * (lk[i + 1] + lk[i]) * dt
-        rhs = pairwise_sum(terms, m + k - 1)
+        rhs = pairwise_sum(terms, n - 1)
         acc[0] = decay * acc[0] + lhs * rhs
         acc[1] = decay * acc[1] + rhs * rhs
-    last_k = m + k - 1
-    flow_prev[0], flow_prev[1], flow_prev[2], flow_prev[3] = net[last_k], comp[last_k], lk[last_k], pl[last_k]
+    flow_prev[0], flow_prev[1], flow_prev[2], flow_prev[3] = net[n - 1], comp[n - 1], lk[n - 1], pl[n - 1]
     # damping: the force balance's residual against the model without damping, high-passed
     force = np.empty(m)
     scaled = np.empty(m)
@@ -180,17 +178,15 @@ class PlantEstimator:
         self.c1_hat = np.full(n, np.nan)
         self.ct_hat = np.full(n, np.nan)
         self.flow_prev = np.zeros((n, 4))  # the previous period's last net flow, compliance, leak pressure, pL
-        self.has_prev = np.zeros(n, dtype=bool)
         self.last = np.zeros((n, 5))  # the previous period's last t, x, v, pL, u
-        self.has_last = np.zeros(n, dtype=bool)
+        self.has_prev = np.zeros(n, dtype=bool)  # whether flow_prev and last hold a previous period
         self.err_c1: list[list[float]] = [[] for _ in range(n)]
         self.err_ct: list[list[float]] = [[] for _ in range(n)]
 
     def grow(self, n: int) -> None:
         if n <= self.n:
             return
-        names = ("z", "acc", "zi", "c1_hat", "ct_hat", "flow_prev", "has_prev", "last", "has_last", "err_c1",
-                 "err_ct")
+        names = ("z", "acc", "zi", "c1_hat", "ct_hat", "flow_prev", "last", "has_prev", "err_c1", "err_ct")
         old, k = {name: getattr(self, name) for name in names}, self.n
         self.reset_all(n)
         for name in names:
@@ -201,7 +197,7 @@ class PlantEstimator:
         self.acc[i] = 0.0
         self.zi[i] = 0.0
         self.c1_hat[i] = self.ct_hat[i] = np.nan
-        self.has_prev[i] = self.has_last[i] = False
+        self.has_prev[i] = False
         self.err_c1[i], self.err_ct[i] = [], []
 
     def update(self, i: int, sig: dict) -> None:
@@ -212,9 +208,9 @@ class PlantEstimator:
         dt = 1.0 / self.fs
         decay = math.exp(-m * dt / self.settings.tau_s)
         self.z[i] = _estimate_period(sig["t"], sig["x"], sig["v"], sig["pL"], sig["u"], sig["a"], sig["FL"],
-                                     self.last[i], self.has_last[i], self.z[i], self.flow_prev[i], self.has_prev[i],
+                                     self.last[i], self.z[i], self.flow_prev[i], self.has_prev[i],
                                      self.acc[i], self.zi[i], self.sos, self.p_model, self._consts, decay, dt)
-        self.has_last[i] = self.has_prev[i] = True
+        self.has_prev[i] = True
         ct_num, ct_den, info, r = self.acc[i]
         if ct_den > 0:
             self.ct_hat[i] = float(np.clip(ct_num / ct_den, *self.CT_RANGE))
