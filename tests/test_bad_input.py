@@ -128,17 +128,44 @@ READERS = {"plant/paper.yaml": ["simulate", "--t-end", "0.2"],
     ("startup: {config: startup}\nrolling: 1\nstartup: {config: rolling}\n", "'startup' is given twice"),
     ("a: {b: 1, b: 2}\n", "'b' is given twice"),
     ("a: " + "[" * 40 + "]" * 40 + "\n", "nested deeper"),
+    ("a: !!float\nb: 1\n", "tag cannot hold"),  # PyYAML's own constructor raised IndexError here
+    ("a: !!bool maybe\n", "tag cannot hold"),
+    ("a: !!timestamp 3 pm\n", "tag cannot hold"),
 ])
 def test_the_yaml_loader_refuses_aliases_repeated_keys_and_deep_nesting_before_building(tmp_path, text, what):
-    """One loader reads every YAML file: what a config never needs is refused while the file is composed, before
-    an alias could expand or a repeated key silently replace the first."""
-    from millvib_env._yaml import load_yaml
+    """One loader reads every YAML file: what a config never needs is refused once the file is composed, before
+    an alias could expand or a repeated key silently replace the first; with libyaml's parser and PyYAML's own
+    (the fallback where PyYAML has no libyaml)."""
+    import yaml
+
+    from millvib_env._yaml import _CLoader, _PyLoader, load_yaml, parse_text
 
     path = tmp_path / "c.yaml"
     path.write_text(text)
     with pytest.raises(ValueError, match=what) as info:
         load_yaml(path)
     assert "c.yaml" in str(info.value) and "\n" not in str(info.value)
+    for loader in (_CLoader, _PyLoader):
+        with pytest.raises(yaml.YAMLError, match=what):
+            parse_text(text, loader)
+
+
+def test_libyamls_parser_and_pyyamls_own_read_every_shipped_yaml_file_as_the_same_data():
+    from millvib_env._paths import agents_dir, config_dir
+    from millvib_env._yaml import _CLoader, _PyLoader, parse_text
+
+    def typed(x):  # 1 and 1.0 and True are equal in Python: compare the types too
+        if isinstance(x, dict):
+            return {typed(k): typed(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [typed(v) for v in x]
+        return type(x).__name__, repr(x)
+
+    files = sorted([*config_dir().rglob("*.y*ml"), *agents_dir().rglob("*.y*ml")])
+    assert len(files) >= 20
+    for path in files:
+        text = path.read_text()
+        assert typed(parse_text(text, _CLoader)) == typed(parse_text(text, _PyLoader)), path
 
 
 def test_a_yaml_file_read_again_is_its_current_text_in_a_fresh_object(tmp_path):
