@@ -557,6 +557,67 @@ def test_a_users_envelope_ends_an_episode_as_the_configs_does_and_is_checked():
         gym.make("MillVib-GainSchedule-v1", envelope_fn="no")
 
 
+def test_a_base_controller_object_runs_as_its_named_gain_set_in_every_kind_of_env():
+    """``base_controller=`` (a `LoopController`: a PIDGains or a fixed-gain baseline) is the controller under the
+    action: the residual valve action's or the relative gain action's base. Its episodes are, bit for bit, those of
+    its gains given in the config; the zero gain action is exactly the controller's benchmark episode."""
+    from millvib_env import PIDGains
+    from millvib_env.control.factory import load_controller
+    from millvib_env.envs.vec_env import MillVibVecEnv
+    from millvib_env.envs.vector import ValveVectorEnv
+    from millvib_env.training.evaluate import run_episodes
+
+    ctrl = load_controller("pid-pf-robust", version="v1")
+
+    def valve_course(env, steps=60):
+        obs, _ = env.reset(seed=20011)
+        seen = [obs]
+        for _ in range(steps):
+            obs, *_ = env.step(np.full(env.action_space.shape, 0.05, np.float32))
+            seen.append(obs)
+        return np.array(seen)
+
+    by_name = valve_course(gym.make("MillVib-Valve-v1", residual=True, actions={"residual_gains": "pid-pf-robust"}))
+    for base in (ctrl, PIDGains(*ctrl.loop_gains())):
+        assert np.array_equal(valve_course(gym.make("MillVib-Valve-v1", residual=True, base_controller=base)), by_name)
+    vec = MillVibVecEnv("MillVib-Valve-v1", 2, residual=True, base_controller=ctrl)
+    assert vec.core.residual_gains == PIDGains(*ctrl.loop_gains())
+    vector = ValveVectorEnv(2, env_version="v1", residual=True, base_controller=ctrl)
+    assert vector.core.residual_gains == vec.core.residual_gains
+
+    seed = 20000 + 3
+    env = gym.make("MillVib-GainSchedule-v1", base_controller=ctrl)
+    assert env.action_space.shape == (4,)
+    env.reset(seed=seed)
+    done = False
+    while not done:
+        _, _, term, trunc, info = env.step(np.zeros(4, np.float32))
+        done = term or trunc
+    expected = run_episodes(ctrl, [seed], task="startup")[0]
+    assert (info["severity"], info["tracking_rms_um"]) == (expected["severity_mm_s"], expected["tracking_rms_um"])
+
+
+def test_a_base_controller_that_the_loop_cannot_run_is_refused_in_one_line():
+    from millvib_env.control.factory import load_controller
+
+    ctrl = load_controller("pid-pf-robust", version="v1")
+    cases = [(dict(residual=True, base_controller=load_controller("pid-oracle", version="v1")), "loop_gains"),
+             (dict(residual=True, base_controller=3), "base_controller = 3"),
+             (dict(residual=True, base_controller=ctrl, actions={"residual_gains": [1.0, 0.0, 0.0]}), "both given"),
+             (dict(base_controller=ctrl), "residual = False")]
+    for kwargs, what in cases:
+        with pytest.raises(ValueError, match=what) as info:
+            gym.make("MillVib-Valve-v1", **kwargs)
+        assert "\n" not in str(info.value)
+
+    class Broken:
+        def loop_gains(self):
+            return [1.0, float("nan"), 0.0]
+
+    with pytest.raises(ValueError, match="3 to 5 finite gains"):
+        gym.make("MillVib-GainSchedule-v1", base_controller=Broken())
+
+
 def test_an_env_config_is_immutable_and_still_pickles_and_copies():
     """One EnvConfig is shared by every caller that loads it (`Task.env_config`): no section or list of it can be
     changed in place; it still pickles (jobs in other processes), and a deep copy is a plain dict to change."""

@@ -234,6 +234,12 @@ class PIDGains:
     def to_array(self) -> np.ndarray:
         return np.array([self.kp, self.ki, self.kd], dtype=np.float64)
 
+    def loop_gains(self) -> list[float]:
+        """KP, KI, KD, then KPL where pressure feedback (or the feedforward) is on, then KFF where the
+        feedforward is: the gains an environment's loop runs (``base_controller=``, `envs.actions.LoopController`)."""
+        n = 5 if self.kff else 4 if self.kpl else 3
+        return [self.kp, self.ki, self.kd, self.kpl, self.kff][:n]
+
 
 #: The paper's nominal controller (given with its KP study): KP = 1e5, KI = 0.001, KD = 0.
 PAPER_GAINS = PIDGains(kp=1.0e5, ki=1.0e-3, kd=0.0)

@@ -55,6 +55,10 @@ class FixedGainPolicy(Controller):
             return self._action.copy(), state
         return np.tile(self._action, (obs.shape[0], 1)), state
 
+    def loop_gains(self) -> list[float]:
+        """Its gains, for an environment's loop to run under the agent's action (``base_controller=``)."""
+        return [float(g) for g in self.gains]
+
     def __repr__(self) -> str:
         return f"FixedGainPolicy({self.name}, gains={np.array2string(self.gains, precision=3)})"
 

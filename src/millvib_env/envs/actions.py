@@ -16,12 +16,15 @@ The gains are (KP, KI, KD), then KPL with ``actions.pressure_feedback: true`` an
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from millvib_env._checks import shown
 from millvib_env.envs.config import EnvConfig
 
-__all__ = ["GainMap", "GAIN_NAMES", "GAIN_UNITS", "WIDE_BOUNDS", "wide_actions", "fixed_actions"]
+__all__ = ["GainMap", "GAIN_NAMES", "GAIN_UNITS", "WIDE_BOUNDS", "wide_actions", "fixed_actions", "LoopController",
+           "base_controller_overrides"]
 
 GAIN_NAMES = ("kp", "ki", "kd", "kpl", "kff")
 GAIN_UNITS = {"kp": "V/m", "ki": "V/(m s)", "kd": "V s/m", "kpl": "V/Pa", "kff": "V/N"}
@@ -45,6 +48,53 @@ def fixed_actions(gains) -> dict:
     g = [float(v) for v in gains]
     return {"pressure_feedback": len(g) >= 4, "force_feedforward": len(g) == 5,
             "relative": {"base": g, "decades": 0.0}}
+
+
+@runtime_checkable
+class LoopController(Protocol):
+    """A fixed controller that an environment's loop can run under the agent's action (``base_controller=``):
+    its gains, KP, KI, KD, then KPL (pressure feedback) and KFF (force feedforward) where it has them. A
+    `millvib_env.PIDGains` is one, and so is a fixed-gain baseline (``load_controller("pid-pf-robust")``)."""
+
+    def loop_gains(self) -> Sequence[float]: ...
+
+
+def base_controller_overrides(mode: str, residual: bool, controller: Any, overrides: Mapping) -> dict:
+    """`overrides` (an environment's keyword arguments for its config) with `controller` (a `LoopController`, or
+    None for none) as the fixed controller under the action: the residual valve action's
+    (``actions.residual_gains``), or the gain action's base (``actions.relative.base``; the zero action is then
+    exactly the controller, and +-1 moves each gain by the config's ``decades``, one by default)."""
+    out = dict(overrides)
+    if controller is None:
+        return out
+    if not isinstance(controller, LoopController):
+        raise ValueError(f"base_controller = {shown(controller)} is invalid: a fixed controller with loop_gains() "
+                         "(a PIDGains, or a fixed-gain baseline from load_controller, e.g. 'pid-pf-robust')")
+    try:
+        gains = [float(g) for g in controller.loop_gains()]
+    except (TypeError, ValueError):
+        gains = []
+    if not 3 <= len(gains) <= 5 or not all(np.isfinite(gains)) or min(gains) < 0:
+        raise ValueError(f"base_controller {shown(controller)} gives loop_gains() = {shown(controller.loop_gains())}:"
+                         " 3 to 5 finite gains >= 0 (KP, KI, KD[, KPL[, KFF]]) are needed")
+    acts = out.get("actions")
+    acts = dict(acts) if isinstance(acts, Mapping) else {}
+    if mode == "valve":
+        if not residual:
+            raise ValueError("base_controller is given but residual = False: a controller runs under the valve "
+                             "action in residual mode only (residual=True)")
+        taken = "residual_gains"
+        acts_new = {**acts, "residual_gains": gains}
+    else:
+        rel = acts.get("relative")
+        rel = dict(rel) if isinstance(rel, Mapping) else {}
+        taken = "relative" if "base" in rel else ""
+        acts_new = {**acts, "pressure_feedback": len(gains) >= 4, "force_feedforward": len(gains) == 5,
+                    "relative": {**rel, "base": gains}}
+    if taken and taken in acts:
+        raise ValueError(f"base_controller and actions.{taken} are both given: give one of them")
+    out["actions"] = acts_new
+    return out
 
 
 def gain_names(pressure_feedback: bool, force_feedforward: bool = False) -> tuple[str, ...]:

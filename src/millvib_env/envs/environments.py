@@ -7,6 +7,7 @@ from typing import Any, Sequence
 import gymnasium as gym
 
 from millvib_env._checks import seed_or_none
+from millvib_env.envs.actions import LoopController, base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.envs.disturbances import Disturbance
@@ -26,10 +27,12 @@ class MillVibEnv(gym.Env):
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  render_mode: str | None = None, env_version: str = "v0",
                  extra_disturbances: Sequence[Disturbance] | None = None, reward_fn: RewardFunction | None = None,
-                 envelope_fn: EnvelopeFunction | None = None, **overrides: Any):
+                 envelope_fn: EnvelopeFunction | None = None, base_controller: LoopController | None = None,
+                 **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
+        overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
@@ -248,6 +251,25 @@ class GainScheduleEnv(MillVibEnv):
     env = gym.make("MillVib-GainSchedule-v1", config="rolling", envelope_fn=tight_gap)
     ```
 
+    ### Your own base controller
+
+    ``base_controller=`` (every environment, the VecEnv and the vector env take it) sets the fixed controller
+    the action works around: here the relative action's base (``actions.relative.base``: the zero action is
+    exactly that controller, +-1 moves each gain by the config's ``decades``, one decade by default); in
+    `ValveEnv` with ``residual=True`` the controller whose command the agent's is added to
+    (``actions.residual_gains``). It takes an object with ``loop_gains()`` (KP, KI, KD, then KPL and KFF where it
+    has them; ``millvib_env.envs.actions.LoopController``): a ``PIDGains`` or a fixed-gain baseline. Its
+    episodes are those of the same gains given in the config, bit for bit; an agent, a plant-aware baseline or
+    a controller given twice (here and in ``actions``) is refused in one line.
+
+    ```python
+    from millvib_env import PIDGains
+    from millvib_env.control.factory import load_controller
+
+    env = gym.make("MillVib-GainSchedule-v1", base_controller=load_controller("pid-pf-robust", version="v1"))
+    env = gym.make("MillVib-Valve-v1", residual=True, base_controller=PIDGains(kp=8e5, ki=5e7, kd=300, kpl=6e-8))
+    ```
+
     ## Version History
 
     * v1: the loop as commissioned (``gym.make("MillVib-GainSchedule-v1", config="rolling")``; the
@@ -283,7 +305,8 @@ class ValveEnv(MillVibEnv):
     `GainScheduleEnv`): every control period (1 ms) the agent commands the servo-amplifier input.
     With ``residual=True`` the command is added to a fixed controller's (the paper's PID by default;
     ``actions.residual_gains`` takes [KP, KI, KD], + KPL for pressure feedback, + KFF for the force
-    feedforward): the agent learns a correction.
+    feedforward; or give the controller as an object, ``base_controller=``, see `GainScheduleEnv`): the agent
+    learns a correction.
 
     ## Action Space
 

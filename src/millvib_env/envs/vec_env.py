@@ -10,6 +10,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
 from millvib_env._checks import seed_or_none
+from millvib_env.envs.actions import base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 
@@ -31,12 +32,13 @@ class MillVibVecEnv(VecEnv):
                  config: str | dict | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  extra_disturbances: Sequence | None = None, reward_fn: Any = None,
-                 envelope_fn: Any = None, **overrides: Any):
+                 envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
         mode = env_mode(env_id)
         if render_mode not in (None, "rgb_array", "human"):
             raise ValueError(f"render_mode = {render_mode!r} is invalid")
         self.env_id = env_id
         self.render_mode = render_mode
+        overrides = base_controller_overrides(mode, residual, base_controller, overrides)
         self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
         self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,

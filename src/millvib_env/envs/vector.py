@@ -17,6 +17,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from millvib_env._checks import seed_or_none
+from millvib_env.envs.actions import base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 
@@ -32,10 +33,11 @@ class MillVibVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *, config: str | dict | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None, env_version: str = "v0",
                  render_mode: str | None = None, extra_disturbances: Sequence | None = None, reward_fn: Any = None,
-                 envelope_fn: Any = None, **overrides: Any):
+                 envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
         if render_mode is not None:
             raise ValueError(f"render_mode = {render_mode!r} is invalid for the vector environment: None (render "
                              "one environment: gym.make)")
+        overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
         self.config = load_env_config(config, version=env_version, **overrides)
         self.core = MillVibCore(num_envs, self.mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
