@@ -140,8 +140,8 @@ def test_the_controller_groups_expand_to_their_members_once():
 
 
 def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tmp_path, monkeypatch):
-    """docs/maintainers.md's recipe: a registry entry (`control.registry.fixed_gains`) and the gains in the task's
-    control config are all a new fixed-gain baseline needs to load and run by name."""
+    """docs/maintainers.md's recipe: a registry entry (`control.registry.Baseline.fixed`) and the gains in the task's
+    control config are all a new fixed-gain baseline needs to load and run by name, and to be named as gains."""
     import shutil
 
     from millvib_env._paths import config_dir
@@ -152,12 +152,16 @@ def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tm
     path = root / "control" / "v1" / "startup.yaml"
     path.write_text(path.read_text() + "pid-mine:\n  gains: [2.0e5, 1.0e6, 100.0, 1.0e-4]\n  how: a test entry\n")
     monkeypatch.setenv("MILLVIB_CONFIGS", str(root))
-    monkeypatch.setitem(registry.REGISTRY, "pid-mine", registry.Baseline("a test baseline", registry.fixed_gains))
+    monkeypatch.setitem(registry.REGISTRY, "pid-mine", registry.Baseline.fixed("a test baseline"))
     ctrl = load_controller("pid-mine", "startup", version="v1")
     assert ctrl.gains.tolist() == [2.0e5, 1.0e6, 100.0, 1.0e-4] and ctrl.description == "a test entry"
     assert ctrl.env_id == "MillVib-GainSchedule-v1"
     recs = run_episodes(ctrl, [20_000])
     assert np.isfinite(recs[0]["cost"])
+    from millvib_env.control.named import resolve_named_gains
+
+    assert resolve_named_gains({"actions": {"residual_gains": "pid-mine"}}, "startup", "v1")["actions"] == {
+        "residual_gains": [2.0e5, 1.0e6, 100.0, 1.0e-4]}
 
 
 def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):

@@ -13,15 +13,13 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from millvib_env.control.registry import REGISTRY
-from millvib_env.control.tuned import control_entry, entry_gains
 from millvib_env.envs.config import CONFIG_ALIASES
-from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import Task, all_tasks, get_task
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains",
            "resolve_named_gains_for"]
 
-#: the fixed-gain baselines whose gains may be named (`control.registry.Baseline.named_gains`)
+#: the fixed-gain baselines whose gains may be named (`control.registry.Baseline.fixed`)
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
@@ -30,11 +28,10 @@ def named_gains(name: str, task: Task, version: str = "v0") -> list[float]:
     its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
     (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
 
-    if name not in NAMED_GAINS:
+    gains_fn = REGISTRY[name].gains if name in REGISTRY else None
+    if gains_fn is None:
         raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
-    if name == "pid-paper":
-        return [float(g) for g in PAPER_GAINS.to_array()]
-    return entry_gains(task, name, control_entry(task, name, version), version)
+    return gains_fn(name, task, version)[0]
 
 
 def task_of_config(config: Any) -> Task:

@@ -3,8 +3,8 @@
 A baseline is a `Baseline` entry: its description (the benchmark's and `millvib controllers`' text), its
 builder (name, task, version, the task's env config and gain map -> a `Controller`), and whether it needs the
 sampled loop (v1) or is a fixed gain set that a config may name. `control.factory.load_controller` builds any of
-them, and agents by folder. A new fixed-gain baseline is one entry here (``build=fixed_gains``) and its entry
-in configs/control/[v1/]<task>.yaml (docs/maintainers.md).
+them, and agents by folder. A new fixed-gain baseline is one entry here (``Baseline.fixed(description)``) and its
+entry in configs/control/[v1/]<task>.yaml (docs/maintainers.md).
 """
 
 from __future__ import annotations
@@ -22,10 +22,16 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import Task
 
-__all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "baseline_names", "fixed_gains"]
+__all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "baseline_names", "fixed_gains",
+           "tuned_gains", "paper_gains"]
 
 #: a builder: (name, the task, environment version, the task's env config, its gain map) -> the controller
 Builder = Callable[[str, Task, str, EnvConfig, GainMap], Controller]
+
+
+#: a fixed-gain baseline's gains: (name, the task, environment version) -> (KP, KI, KD[, KPL[, KFF]], how they
+#: were found)
+GainsFn = Callable[[str, Task, str], "tuple[list[float], str]"]
 
 
 @dataclass(frozen=True)
@@ -36,21 +42,42 @@ class Baseline:
     build: Builder
     #: it needs the sampled loop (environment version v1)
     loop_only: bool = False
-    #: one fixed gain set, which env kwargs or a hyperparameter file may name (`control.named`)
-    named_gains: bool = False
     #: the environment it acts in: "gain" (it sets the PID's gains) or "valve" (it commands the valve)
     env_mode: str = "gain"
+    #: a fixed-gain baseline's gains (`Baseline.fixed`); env kwargs and hyperparameter files may then name it
+    #: (`control.named`)
+    gains: GainsFn | None = None
+
+    @classmethod
+    def fixed(cls, description: str, gains: GainsFn | None = None) -> Baseline:
+        """A fixed-gain baseline: its gains from `gains`, by default its entry in the task's control config
+        (`tuned_gains`)."""
+        return cls(description, fixed_gains, gains=gains or tuned_gains)
+
+    @property
+    def named_gains(self) -> bool:
+        """One fixed gain set, which env kwargs or a hyperparameter file may name."""
+        return self.gains is not None
 
 
-def paper_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+def tuned_gains(name: str, task: Task, version: str) -> tuple[list[float], str]:
+    """Entry `name` of the task's control config in the version (`control.tuned`): its checked gains and ``how``."""
+    entry = control_entry(task, name, version)
+    return entry_gains(task, name, entry, version), entry.get("how", "")
+
+
+def paper_gains(name: str, task: Task, version: str) -> tuple[list[float], str]:
     """The paper's PID, the same on every task."""
-    return FixedGainPolicy(name, PAPER_GAINS, REGISTRY[name].description)
+    return [float(g) for g in PAPER_GAINS.to_array()], REGISTRY[name].description
 
 
 def fixed_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
-    """One fixed gain set, from the task's control config entry `name` (its ``gains`` and ``how``)."""
-    entry = control_entry(task, name, version)
-    return FixedGainPolicy(name, entry_gains(task, name, entry, version), entry.get("how", ""))
+    """A fixed-gain baseline (`Baseline.fixed`): its gains (`Baseline.gains`) as a `FixedGainPolicy`."""
+    gains_fn = REGISTRY[name].gains
+    if gains_fn is None:
+        raise ValueError(f"baseline {name!r} has no fixed gains (a Baseline.fixed entry has)")
+    gains, how = gains_fn(name, task, version)
+    return FixedGainPolicy(name, gains, how)
 
 
 def gain_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
@@ -92,23 +119,22 @@ def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) 
 
 #: every baseline by name, in the benchmark's order
 REGISTRY: dict[str, Baseline] = {
-    "pid-paper": Baseline("the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)", paper_gains, named_gains=True),
-    "pid-nominal": Baseline("tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is commissioned",
-                            fixed_gains, named_gains=True),
-    "pid-robust": Baseline("one set of gains minimising the mean cost over the task's tuning plants", fixed_gains,
-                           named_gains=True),
+    "pid-paper": Baseline.fixed("the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)", paper_gains),
+    "pid-nominal": Baseline.fixed("tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is "
+                                  "commissioned"),
+    "pid-robust": Baseline.fixed("one set of gains minimising the mean cost over the task's tuning plants"),
     "pid-oracle": Baseline("knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not "
                            "deployable", gain_oracle),
     "pid-adaptive": Baseline("estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the "
                              "estimate", adaptive),
     "lqr-oracle": Baseline("knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
                            "linearised plant; not deployable", lqr_oracle),
-    "pid-pf-robust": Baseline("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range of c1 "
-                              "and Ct: the active damping a plant engineer commissions; the benchmark's reference",
-                              fixed_gains, named_gains=True),
-    "pid-pf-ff": Baseline("pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), all "
-                          "five gains tuned together: the classical opponent of a controller that reads the load "
-                          "cells", fixed_gains, named_gains=True),
+    "pid-pf-robust": Baseline.fixed("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range "
+                                    "of c1 and Ct: the active damping a plant engineer commissions; the benchmark's "
+                                    "reference"),
+    "pid-pf-ff": Baseline.fixed("pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), "
+                                "all five gains tuned together: the classical opponent of a controller that reads "
+                                "the load cells"),
     "pid-pf-oracle": Baseline("knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
                               "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
                               gain_oracle),
