@@ -47,6 +47,9 @@ class Baseline:
     #: a fixed-gain baseline's gains (`Baseline.fixed`); env kwargs and hyperparameter files may then name it
     #: (`control.named`)
     gains: GainsFn | None = None
+    #: it knows the disturbances' and the set-point's course ahead (a preview): the benchmark's room to learn
+    #: keeps it apart from the bounds that know the present only
+    previews: bool = False
 
     @classmethod
     def fixed(cls, description: str, gains: GainsFn | None = None) -> Baseline:
@@ -100,7 +103,8 @@ def adaptive(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: Gain
 
 
 def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
-    """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`)."""
+    """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`); a preview where its entry says so
+    (`Baseline.previews`)."""
 
     if version == "v0":
         raise ValueError(f"{name} runs on the loop as commissioned: use environment version v1, not v0")
@@ -114,7 +118,7 @@ def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) 
     if unknown:
         raise ValueError(f"{control_config_path(task, version)} {name}.settings has unknown keys {unknown}: "
                          f"allowed {fields}")
-    return MPCPolicy(name, MPCSettings(**{**settings, "preview": name == "mpc-preview"}), version)
+    return MPCPolicy(name, MPCSettings(**{**settings, "preview": REGISTRY[name].previews}), version)
 
 
 #: every baseline by name, in the benchmark's order
@@ -143,7 +147,7 @@ REGISTRY: dict[str, Baseline] = {
                            "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve"),
     "mpc-preview": Baseline("mpc-oracle that also knows the disturbances' and the set-point's course over its horizon "
                             "(an entry gauge's preview, made exact); not deployable; v1 only", mpc, loop_only=True,
-                            env_mode="valve"),
+                            env_mode="valve", previews=True),
 }
 #: every baseline by name, with what it is
 BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()}

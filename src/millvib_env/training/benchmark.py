@@ -32,7 +32,7 @@ from millvib_env._paths import atomic_folder, check_output, check_result_folder,
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
-from millvib_env.control.registry import REFERENCE, baseline_names
+from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
@@ -374,12 +374,13 @@ def room(result: dict) -> dict | None:
                         "room_cvar20_ci": [-pr["cvar20_ci"][1], -pr["cvar20_ci"][0]]}
     if not bounds:
         return None
-    present = [n for n in bounds if n != "mpc-preview"]
+    present = [n for n in bounds if not REGISTRY[n].previews]
+    previews = [n for n in bounds if REGISTRY[n].previews]
     rooms = {}
     if present:
         rooms["without_preview"] = max(present, key=lambda n: bounds[n]["room_mean"])
-    if "mpc-preview" in bounds:
-        rooms["with_preview"] = "mpc-preview"
+    if previews:
+        rooms["with_preview"] = max(previews, key=lambda n: bounds[n]["room_mean"])
     ref_cost = [r["cost"] for r in recs_of[ref]]
     shares: dict = {}
     for name, recs in recs_of.items():

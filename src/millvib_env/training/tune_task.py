@@ -228,10 +228,22 @@ def _tune_cell(kind: str, task: Task, seeds: list[int], plant: dict, version: st
                base: list[float] | None = None) -> tuning.TuneResult:
     """One grid plant of an oracle table (`kind` pid-oracle or pid-pf-oracle): a job of its own, so that
     `--jobs N` tunes the plants in N worker processes (each plant is independent: the same gains)."""
-    if kind == "pid-oracle":
-        return tuning.tune(seeds, task=task, params=plant, refine_iters=40, version=version)
+    return _CELL_TUNERS[kind](task, seeds, plant, version, base)
+
+
+def _pid_cell(task: Task, seeds: list[int], plant: dict, version: str, base: list[float] | None):
+    """A pid-oracle cell: the PID's grid search and Nelder-Mead on the plant."""
+    return tuning.tune(seeds, task=task, params=plant, refine_iters=40, version=version)
+
+
+def _pf_cell(task: Task, seeds: list[int], plant: dict, version: str, base: list[float] | None):
+    """A pid-pf-oracle cell: Nelder-Mead from pid-pf-robust's gains (`base`) on the plant."""
     return tuning.tune_from(np.asarray(base, float)[None, :], seeds, task=task, refine_iters=60, step_decades=0.2,
                             params=plant, version=version)
+
+
+#: how one grid plant of each oracle table is tuned
+_CELL_TUNERS: dict[str, Callable[..., tuning.TuneResult]] = {"pid-oracle": _pid_cell, "pid-pf-oracle": _pf_cell}
 
 
 #: how each tunable baseline is tuned, in the order a run tunes them (an entry may build on one before it)
