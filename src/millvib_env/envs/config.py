@@ -18,6 +18,7 @@ from typing import Any, Callable, Mapping, NoReturn
 from millvib_env._checks import as_float, shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.envs.disturbances import DisturbanceSettings
 from millvib_env.loop.settings import LoopSettings
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
@@ -304,6 +305,10 @@ class EnvConfig:
     @cached_property
     def actions(self) -> ActionSettings:
         return ActionSettings.from_section(self.raw["actions"])
+
+    @cached_property
+    def disturbances(self) -> DisturbanceSettings:
+        return DisturbanceSettings.from_section(self.raw["disturbances"])
 
     @property
     def pressure_feedback(self) -> bool:
@@ -638,7 +643,9 @@ def load_env_config(config: str | Path | Mapping | None = "startup", *, version:
                 _fail(f"actions.{key}", data["actions"][key], "log-scaled gain bounds need 0 < low < high "
                       "(or actions.scale: linear)")
     base = _base_params(data["plant"])
-    return EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base), version=version)
+    cfg = EnvConfig(raw=data, base_params=base, randomize=_randomize(data, base), version=version)
+    cfg.disturbances  # noqa: B018 - typed at load: a section the schema let through but no disturbance takes fails here
+    return cfg
 
 
 def _check_timing(data: dict) -> None:

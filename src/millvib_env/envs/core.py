@@ -24,7 +24,7 @@ from gymnasium.utils import seeding
 from millvib_env._checks import as_float, shown
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
-from millvib_env.envs.disturbances import EpisodeProfile, build_disturbances, user_disturbances
+from millvib_env.envs.disturbances import EpisodeProfile, user_disturbances
 from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.observation import Observer
@@ -71,7 +71,6 @@ class MillVibCore:
             if flag is not None and not isinstance(flag, (bool, np.bool_)):
                 raise ValueError(f"{name} = {flag!r} is invalid: must be True or False")
         self.n, self.mode, self.cfg, self.residual = int(n), mode, config, bool(residual and mode == "valve")
-        raw = config.raw
         seen = config.observation
         observe_params = seen.params if observe_params is None else observe_params
         observe_phase = seen.phase if observe_phase is None else observe_phase
@@ -96,7 +95,8 @@ class MillVibCore:
             raise ValueError(f"n_envs = {shown(self.n)} with episode_s = {config.episode_s} s would need "
                              f"{as_float(need) / 2**30:.1f} GiB of episode records; allowed up to "
                              f"{MAX_BATCH_BYTES / 2**30:.0f} GiB: use fewer environments or shorter episodes")
-        self.disturbances, noise, delay = build_disturbances(raw["disturbances"])
+        dist = config.disturbances
+        self.disturbances, noise, delay = list(dist.profile), dist.sensor_noise, dist.delay_steps
         self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
         self.disturbances += user_disturbances(extra_disturbances)
 

@@ -215,7 +215,23 @@ _PROFILE_KINDS = {"setpoint_steps": _steps(SetpointSteps, "amplitude_m"), "force
                   "plant_change": _change}
 
 
-def build_disturbances(spec: dict) -> tuple[list, SensorNoise | None, int]:
+@dataclass(frozen=True)
+class DisturbanceSettings:
+    """The config's ``disturbances`` section, typed (`EnvConfig.disturbances`, built once at load): the profile
+    disturbances in the order they draw (frozen, so one config's are shared by every environment), the sensor
+    noise, and the observation's delay in agent steps."""
+
+    profile: tuple = ()
+    sensor_noise: SensorNoise | None = None
+    delay_steps: int = 0
+
+    @classmethod
+    def from_section(cls, spec) -> DisturbanceSettings:
+        items, noise, delay = build_disturbances(spec)
+        return cls(tuple(items), noise, delay)
+
+
+def build_disturbances(spec) -> tuple[list, SensorNoise | None, int]:
     """From the config's `disturbances` section: (profile disturbances, sensor noise, delay steps)."""
     items = []
     for key, build in _PROFILE_KINDS.items():
