@@ -16,7 +16,7 @@ import numpy as np
 from millvib_env.control.agents import agent_seeds, deterministic_actor, list_agents
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import baseline_names
-from millvib_env.training.benchmark import run_benchmark
+from millvib_env.evaluation.benchmark import run_benchmark
 
 
 def per_call_us(fn, calls: int = 2000) -> float:

@@ -11,7 +11,7 @@ import time
 
 from millvib_env.control.factory import load_controller
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.evaluate import run_episodes
 
 
 def cpu_of(name: str, task: str, seeds: list[int]) -> float:

@@ -15,7 +15,7 @@ from scipy.signal import welch
 
 from millvib_env.control.factory import load_controller
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import trace_episode
+from millvib_env.evaluation.evaluate import trace_episode
 
 BANDS_HZ = ((0, 5), (5, 20), (20, 60), (60, 200), (200, 5000))
 

@@ -304,9 +304,9 @@ def _api_calls():
     from millvib_env.plant.model import PlantChange
     from millvib_env.severity import (band_levels, band_levels_rows, iso_zone, vibration_severity,
                                       vibration_severity_rows)
-    from millvib_env.training.benchmark import run_benchmark
-    from millvib_env.training.evaluate import episode_cost, run_episodes, trace_episode
-    from millvib_env.training.sweep import run_sweep
+    from millvib_env.evaluation.benchmark import run_benchmark
+    from millvib_env.evaluation.evaluate import episode_cost, run_episodes, trace_episode
+    from millvib_env.evaluation.sweep import run_sweep
 
     p, g = MillParams(), PIDGains(1e5, 1e-3)
     sig = np.random.default_rng(0).standard_normal(2000)

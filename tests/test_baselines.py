@@ -10,7 +10,7 @@ from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
 from millvib_env.params import PIDGains
 from millvib_env.tasks import get_task, list_tasks
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.evaluate import run_episodes
 
 
 @pytest.mark.parametrize("friction", ["stick", "sliding"])
@@ -131,7 +131,7 @@ def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
 
 
 def test_the_controller_groups_expand_to_their_members_once():
-    from millvib_env.training.benchmark import DEPLOYABLE_CLASSICAL, _expand_groups
+    from millvib_env.evaluation.benchmark import DEPLOYABLE_CLASSICAL, _expand_groups
 
     assert _expand_groups(["classical", "pid-paper"], "v1") == list(DEPLOYABLE_CLASSICAL)
     assert _expand_groups(["bounds"], "v1") == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]

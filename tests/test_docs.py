@@ -35,7 +35,7 @@ def test_the_plain_sb3_recipe_runs_as_written_and_gives_the_benchmarks_episode(m
     import numpy as np
 
     from millvib_env.control import load_controller
-    from millvib_env.training.evaluate import run_episodes
+    from millvib_env.evaluation.evaluate import run_episodes
 
     text = (ROOT / "agents" / "README.md").read_text()
     code = re.search(r"<!-- recipe: plain-sb3 -->\n```python\n(.*?)```", text, re.S).group(1)
@@ -122,3 +122,30 @@ def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_p
                           if m.split(".")[0] in ("millvib_env", "millvib_cli") and m not in LAZY_MODULES
                           and m != "millvib_env"]
     assert not found, found
+
+
+def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_are_the_same_modules():
+    """docs/architecture.md's upper floors: evaluation/ imports neither training/ nor tuning/, and those two never
+    import each other (each uses evaluation); `millvib_env.training.benchmark` and the other earlier names are the
+    moved modules themselves (one object: a monkeypatch through either name is seen through both)."""
+    import ast
+    import importlib
+    from pathlib import Path
+
+    import millvib_env
+
+    root = Path(millvib_env.__file__).parent
+    shims = {"benchmark": "evaluation.benchmark", "evaluate": "evaluation.evaluate", "stats": "evaluation.stats",
+             "sweep": "evaluation.sweep", "tuning": "tuning.search", "tune_task": "tuning.baselines"}
+    forbidden = {"evaluation": ("millvib_env.training", "millvib_env.tuning"), "tuning": ("millvib_env.training",),
+                 "training": ("millvib_env.tuning",)}
+    for folder, banned in forbidden.items():
+        for path in (root / folder).glob("*.py"):
+            if folder == "training" and path.stem in shims:
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+                assert not [n for n in names if n.startswith(banned)], (path, names)
+    for old, new in shims.items():
+        assert importlib.import_module(f"millvib_env.training.{old}") is importlib.import_module(f"millvib_env.{new}")

@@ -565,7 +565,7 @@ def test_a_base_controller_object_runs_as_its_named_gain_set_in_every_kind_of_en
     from millvib_env.control.factory import load_controller
     from millvib_env.envs.vec_env import MillVibVecEnv
     from millvib_env.envs.vector import ValveVectorEnv
-    from millvib_env.training.evaluate import run_episodes
+    from millvib_env.evaluation.evaluate import run_episodes
 
     ctrl = load_controller("pid-pf-robust", version="v1")
 

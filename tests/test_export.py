@@ -16,7 +16,7 @@ def test_the_exported_graph_acts_as_the_agent_on_observations_it_was_not_checked
 
     from millvib_env.control.factory import load_controller
     from millvib_env.envs.batch import EpisodeBatch
-    from millvib_env.training.evaluate import env_kwargs_for
+    from millvib_env.evaluation.evaluate import env_kwargs_for
 
     out = tmp_path / "policy.onnx"
     summary = export_agent("dagger-residual-preview", out, seed=0, check_steps=50, latency_calls=0)

@@ -250,7 +250,7 @@ def test_a_severity_window_outside_the_run_is_refused(t_start):
     (lambda: __import__("millvib_env.severity", fromlist=["x"]).iso_zone("3"), "severity_mm_s"),
     (lambda: __import__("millvib_env.control.factory", fromlist=["x"]).load_controller("ppo-gain-pf", seed="0"),
      "seed"),
-    (lambda: __import__("millvib_env.training.benchmark", fromlist=["x"]).run_benchmark("pid-paper", episodes=2,
+    (lambda: __import__("millvib_env.evaluation.benchmark", fromlist=["x"]).run_benchmark("pid-paper", episodes=2,
                                                                                         progress=False),
      "controllers"),
     (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(x0=-0.15), "x0"),

@@ -13,7 +13,7 @@ from millvib_env.envs.config import load_env_config
 from millvib_env.envs.reward import DIVERGED_COST
 from millvib_env.loop.kernel import K_UI
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import run_episodes, trace_episode
+from millvib_env.evaluation.evaluate import run_episodes, trace_episode
 
 #: a PID + pressure feedback of the v0 startup task's kind (KP, KI, KD, KPL)
 PF_GAINS = [1.0e6, 1.0e8, 300.0, 1.0e-4]
@@ -127,7 +127,7 @@ def test_the_port_opening_is_limited_to_the_spool_stroke():
 
 
 def test_a_diverged_episode_costs_at_least_the_cap_in_the_benchmark_and_the_tuning():
-    from millvib_env.training.tuning import mean_costs
+    from millvib_env.tuning.search import mean_costs
 
     # an envelope of 0.9 mm around v0's 1 mm start: every episode leaves it in its first step, with a record
     # of 10 ms that would cost little if it were scored as it stands
@@ -137,7 +137,7 @@ def test_a_diverged_episode_costs_at_least_the_cap_in_the_benchmark_and_the_tuni
     assert all(r["diverged"] and r["steps"] == 1 for r in recs)
     assert all(r["cost"] >= DIVERGED_COST for r in recs)
     with pytest.MonkeyPatch.context() as mp:  # the tuners score their episodes the same way
-        import millvib_env.training.tuning as tuning
+        import millvib_env.tuning.search as tuning
 
         mp.setattr(tuning, "gain_env_kwargs", lambda *a, **k: {"config": "startup", **tight})
         assert mean_costs(np.log10([gains]), [20000, 20001], task=get_task("startup"))[0] >= DIVERGED_COST

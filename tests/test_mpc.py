@@ -1,4 +1,4 @@
-"""The MPC bounds (`control.mpc`) and the room they measure (`training.benchmark.room`)."""
+"""The MPC bounds (`control.mpc`) and the room they measure (`evaluation.benchmark.room`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from millvib_env.tasks import get_task
 from millvib_env.control.mpc import MPCPolicy, MPCSettings, mpc_model
 from millvib_env.plant.model import C_DFL, NY, STATE_NAMES, drive_vector, pack, plant_rhs
 from millvib_env.params import PIDGains
-from millvib_env.training.benchmark import room
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.benchmark import room
+from millvib_env.evaluation.evaluate import run_episodes
 
 SHORT = {"episode_s": 0.1}
 
@@ -130,7 +130,7 @@ def test_mpc_runs_in_a_plain_gymnasium_loop_as_in_the_benchmark():
 
 
 def _fake(costs: dict) -> dict:
-    from millvib_env.training.benchmark import _compare, summarize
+    from millvib_env.evaluation.benchmark import _compare, summarize
 
     recs = {n: [{"seed": i, "cost": float(c), "severity_mm_s": 1.0, "tracking_rms_um": 1.0, "iso_zone": "A",
                  "diverged": False, "command_max_abs_v": 1.0, "command_at_limit_share": 0.0, "spool_stroke_m": 0.0,

@@ -9,7 +9,7 @@ from millvib_env.control.named import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.evaluate import run_episodes
 
 BASE = [1.15e6, 8.0e8, 300.0, 1.5e-4]
 
@@ -115,7 +115,7 @@ PLAIN_LOOP_NAMES = ["pid-paper", "pid-robust", "pid-oracle", "pid-adaptive", "lq
 
 
 def _plain_loop_cost(ctrl, seed: int) -> float:
-    from millvib_env.training.evaluate import episode_cost
+    from millvib_env.evaluation.evaluate import episode_cost
 
     env = ctrl.make_env()
     obs, info = env.reset(seed=seed)

@@ -8,8 +8,8 @@ import pytest
 from millvib_env._paths import agents_dir
 from millvib_env.cli import main as cli_main
 from millvib_env.control.agents import agent_seeds, list_agents
-from millvib_env.training.benchmark import public_json, run_benchmark
-from millvib_env.training.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
+from millvib_env.evaluation.benchmark import public_json, run_benchmark
+from millvib_env.evaluation.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
 
 #: per controller, what `millvib benchmark --json` promises (README, "Benchmark JSON")
 METRICS = ("cost_mean", "cost_iqm", "cost_cvar20", "cost_worst", "severity_mean", "tracking_rms_um_mean")
@@ -177,8 +177,8 @@ def test_a_benchmark_of_baselines_never_imports_torch(tmp_path):
 
 def test_episode_records_and_the_csv_columns_have_one_home():
     from millvib_env.control import load_controller
-    from millvib_env.training.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes
-    from millvib_env.training.sweep import RANGES
+    from millvib_env.evaluation.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes
+    from millvib_env.evaluation.sweep import RANGES
 
     assert set(CSV_FIELDS) <= set(RECORD_FIELDS)
     for name in ("pid-robust", "pid-adaptive"):  # the adaptive PID adds its estimator's errors
@@ -193,8 +193,8 @@ def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
     a taken name, an environment of another version and Ray are refused in one line."""
     from millvib_env import PIDGains
     from millvib_env.control.policies import FixedGainPolicy
-    from millvib_env.training.benchmark import format_table
-    from millvib_env.training.evaluate import run_episodes
+    from millvib_env.evaluation.benchmark import format_table
+    from millvib_env.evaluation.evaluate import run_episodes
 
     mine = FixedGainPolicy("my-pid", PIDGains(1.5e6, 2e3, 40.0))
     mine.env_id = "MillVib-GainSchedule-v1"

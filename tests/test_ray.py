@@ -4,8 +4,8 @@ import pytest
 pytestmark = pytest.mark.slow
 ray = pytest.importorskip("ray")
 
-from millvib_env.training.benchmark import public_json, run_benchmark  # noqa: E402
-from millvib_env.training.sweep import run_sweep  # noqa: E402
+from millvib_env.evaluation.benchmark import public_json, run_benchmark  # noqa: E402
+from millvib_env.evaluation.sweep import run_sweep  # noqa: E402
 
 
 @pytest.fixture(scope="module")

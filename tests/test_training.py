@@ -17,8 +17,8 @@ from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.params import PIDGains
 from millvib_env.tasks import get_task
-from millvib_env.training.benchmark import public_json, run_benchmark
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.benchmark import public_json, run_benchmark
+from millvib_env.evaluation.evaluate import run_episodes
 from millvib_env.training.train import train
 from tests._skips import skip_without_sbx
 

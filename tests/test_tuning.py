@@ -11,7 +11,7 @@ optuna = pytest.importorskip("optuna")
 @pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
     storage = f"journal:{tmp_path / 'study.log'}"
-    code = ("from millvib_env.tasks import get_task; from millvib_env.training.tuning import tune_optuna; "
+    code = ("from millvib_env.tasks import get_task; from millvib_env.tuning.search import tune_optuna; "
             f"print(tune_optuna([10100, 10101], task=get_task('startup'), storage={storage!r}, study_name='s', "
             "n_trials=2))")
     workers = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -19,14 +19,14 @@ def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
     for w in workers:
         out, err = w.communicate(timeout=300)
         assert w.returncode == 0, err[-2000:]
-    from millvib_env.training.tuning import optuna_storage
+    from millvib_env.tuning.search import optuna_storage
 
     study = optuna.load_study(study_name="s", storage=optuna_storage(storage))
     assert len(study.trials) == 4 and study.best_value > 0
 
 
 def test_a_bad_storage_is_refused():
-    from millvib_env.training.tuning import optuna_storage
+    from millvib_env.tuning.search import optuna_storage
 
     with pytest.raises(ValueError, match="--optuna 'somewhere' is invalid"):
         optuna_storage("somewhere")
@@ -64,7 +64,7 @@ def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_
 
 def test_every_tuned_entry_is_a_registered_baseline_and_every_fixed_gain_set_is_tuned():
     from millvib_env.control.registry import REGISTRY
-    from millvib_env.training.tune_task import ENTRIES, SHARED, TUNERS
+    from millvib_env.tuning.baselines import ENTRIES, SHARED, TUNERS
 
     assert ENTRIES == tuple(TUNERS) and set(SHARED) <= set(TUNERS) and set(TUNERS) <= set(REGISTRY)
     assert {n for n, b in REGISTRY.items() if b.named_gains and n != "pid-paper"} <= set(TUNERS)
@@ -74,8 +74,8 @@ def test_a_run_tunes_every_entry_in_order_each_on_the_one_it_builds_on(monkeypat
     """The tuners' wiring, with the searches replaced by stand-ins that record what they were given: pid-pf-ff
     starts from this run's pid-pf-robust, pid-adaptive takes this run's pid-oracle table, and --from-task
     shares the oracles' entries instead of tuning them."""
-    from millvib_env.training import tuning
-    from millvib_env.training.tune_task import ENTRIES, tune_task
+    from millvib_env.tuning import search as tuning
+    from millvib_env.tuning.baselines import ENTRIES, tune_task
 
     calls = []
 

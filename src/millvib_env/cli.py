@@ -219,13 +219,13 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_sweep(args) -> int:
-    from millvib_env.training.sweep import sweep_from_cli
+    from millvib_env.evaluation.sweep import sweep_from_cli
 
     return sweep_from_cli(args)
 
 
 def _cmd_tune(args) -> int:
-    from millvib_env.training.tune_task import tune_from_cli
+    from millvib_env.tuning.baselines import tune_from_cli
 
     return tune_from_cli(args)
 
@@ -264,13 +264,13 @@ def _cmd_distill(args) -> int:
 
 
 def _cmd_headroom(args) -> int:
-    from millvib_env.training.benchmark import headroom_from_cli
+    from millvib_env.evaluation.benchmark import headroom_from_cli
 
     return headroom_from_cli(args)
 
 
 def _cmd_benchmark(args) -> int:
-    from millvib_env.training.benchmark import benchmark_from_cli
+    from millvib_env.evaluation.benchmark import benchmark_from_cli
 
     return benchmark_from_cli(args)
 
@@ -379,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
         "with the disturbances' course over its horizon) on the same held-out plants. Prints the benchmark's "
         "table with the room: (reference - bound) / reference on the mean and the CVaR-20, with paired 95 % "
         "intervals, and each controller's share of it. --controllers adds or replaces rows.")), _cmd_headroom)
-    from millvib_env.training.tune_task import ENTRIES, __doc__ as tune_doc
+    from millvib_env.tuning.baselines import ENTRIES, __doc__ as tune_doc
 
     p = sub.add_parser("tune", help="tune a task's classical baselines", description=tune_doc,
                        formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -32,7 +32,7 @@ from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import baseline_names
 from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import EpisodeBatch
-from millvib_env.training.evaluate import env_kwargs_for
+from millvib_env.evaluation.evaluate import env_kwargs_for
 
 __all__ = ["export_agent", "ONNX_OPSET", "EXPORT_TOLERANCE"]
 

@@ -37,8 +37,8 @@ from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
 from millvib_env.tasks import get_task
 from millvib_env.threads import serial_unless_set
-from millvib_env.training.benchmark import summarize
-from millvib_env.training.evaluate import run_episodes
+from millvib_env.evaluation.benchmark import summarize
+from millvib_env.evaluation.evaluate import run_episodes
 from millvib_env.training.hyperparams import load_hyperparams
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]

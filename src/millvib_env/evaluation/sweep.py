@@ -1,0 +1,152 @@
+"""`millvib sweep`: controllers over many plants, for when 200 episodes are not enough.
+
+The plants are the task's episodes with the swept parameters drawn over wide ranges (`RANGES`; the
+others keep the task's own distribution), from held-out seeds of the task. Controllers x chunks of
+plants are independent jobs, run in local processes or on Ray (`distributed.run_jobs`); each
+episode depends only on its seed, so local and Ray runs give the same numbers. Writes a per-plant
+CSV, a summary JSON and maps of the cost over the swept parameters (PNG), as a whole folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from millvib_env._checks import integer, strings
+from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
+from millvib_env.control.factory import load_controller
+from millvib_env.distributed import run_jobs
+from millvib_env.envs.batch import env_id_for
+from millvib_env.params import studied_range
+from millvib_env.tasks import Task, get_task
+from millvib_env.evaluation.benchmark import episode_records, format_table, summarize
+from millvib_env.evaluation.evaluate import COST_SCALES
+
+__all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
+
+#: the swept parameters' ranges: c1 and Ct the paper's (log-uniform), the others +-20 % of Table 1
+RANGES = {"c1": ("loguniform", *studied_range("c1")), "Ct": ("loguniform", *studied_range("Ct")),
+          "beta_e": ("uniform", 5.6e8, 8.4e8), "mt": ("uniform", 960.0, 1440.0), "FL": ("uniform", 1.6e6, 2.4e6)}
+#: sweep plants start this far into the task's held-out range (clear of the benchmark's first seeds)
+SEED_OFFSET = 40_000
+CHUNK = 64
+
+
+def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
+    cfg = task.env_config(version)
+    out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
+    for name in params:
+        if name not in RANGES:
+            raise ValueError(f"--params {name!r} is invalid: one of {list(RANGES)}")
+        dist, lo, hi = RANGES[name]
+        out[name] = {"dist": dist, "low": lo, "high": hi}
+    return out
+
+
+def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup", params: Sequence[str] = ("c1", "Ct"),
+              seed: int | None = None, ray: str | None = None, processes: int = 1, progress: bool = True,
+              env_version: str = "v1") -> dict:
+    """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}. Baselines run
+    in environment version `env_version` (agents in their own)."""
+
+    t = get_task(task)
+    plants = integer("--plants", plants, lo=1, hi=len(t.seeds["heldout"]) - SEED_OFFSET)
+    controllers = strings("controllers", controllers, "controller names")
+    params = list(dict.fromkeys(strings("params", params, "parameter names")))
+    seed = None if seed is None else integer("seed", seed, lo=0)
+
+    env_id = env_id_for("gain", env_version)
+    randomize = _randomize(t, params, env_version)
+    first = t.seeds["heldout"].start + SEED_OFFSET if seed is None else seed
+    seeds = list(range(first, first + plants))
+    t.check_heldout(seeds)
+    for name in controllers:
+        load_controller(name, t, version=env_version)  # a bad name fails here, before any job starts
+    jobs = [{"name": n, "task": t, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize},
+             "env_id": env_id}
+            for n in controllers for i in range(0, plants, CHUNK)]
+    parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
+                     desc=f"sweep {t.name}")
+    records: dict[str, list] = {n: [] for n in controllers}
+    for job, part in zip(jobs, parts):
+        records[str(job["name"])].extend(part)
+    summary = {"task": t.name, "env_version": env_version, "plants": plants, "seed": first, "params": params,
+               "ranges": {p: list(RANGES[p]) for p in params},
+               "controllers": {n: summarize(r) for n, r in records.items()}}
+    return {"records": records, "summary": summary}
+
+
+def write_sweep(result: dict, out: str | Path) -> list[Path]:
+
+    out = Path(out)
+    params = result["summary"]["params"]
+    with atomic_folder(out, command="sweep") as tmp:
+        buf = io.StringIO()
+        fields = ["controller", "seed", *dict.fromkeys(["c1", "Ct", *params]), "cost", "severity_mm_s",
+                  "tracking_rms_um", "diverged"]  # record keys (evaluate.EpisodeRecord) and drawn parameters
+        writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        for name, recs in result["records"].items():
+            for r in recs:
+                writer.writerow({"controller": name, **r})
+        write_text_atomic(tmp / "plants.csv", buf.getvalue())
+        write_text_atomic(tmp / "summary.json", json.dumps(result["summary"], indent=2, default=float))
+        save_figure(_maps(result), tmp / "maps.png", dpi=90)
+    return [out / "plants.csv", out / "summary.json", out / "maps.png"]
+
+
+def _maps(result: dict):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+    from matplotlib.ticker import NullFormatter
+
+    params = result["summary"]["params"]
+    names = list(result["records"])
+    pairs = [(params[i], params[j]) for i in range(len(params)) for j in range(i + 1, len(params))][:3]
+    pairs = pairs or [(params[0], "c1" if params[0] != "c1" else "Ct")]
+    costs = [r["cost"] for recs in result["records"].values() for r in recs if math.isfinite(r["cost"])]
+    norm = LogNorm(vmin=max(min(costs), 1e-3), vmax=max(costs))
+    fig, axes = plt.subplots(len(names), len(pairs), figsize=(4.5 * len(pairs), 3.8 * len(names)), squeeze=False,
+                             layout="constrained")
+    for row, name in enumerate(names):
+        recs = result["records"][name]
+        for col, (px, py) in enumerate(pairs):
+            ax = axes[row, col]
+            sc = ax.scatter([r[px] for r in recs], [r[py] for r in recs],
+                            c=[min(r["cost"], 1e6) for r in recs], norm=norm, cmap="magma_r", s=12)
+            ax.set(xlabel=px, ylabel=py, title=f"{name}: mean cost {np.mean([r['cost'] for r in recs]):.3g}")
+            ax.title.set_fontsize(9)
+            for axis, p in (("x", px), ("y", py)):
+                if RANGES[p][0] == "loguniform":
+                    getattr(ax, f"set_{axis}scale")("log")
+                    getattr(ax, f"{axis}axis").set_minor_formatter(NullFormatter())
+    fig.colorbar(sc, ax=axes, label="episode cost", shrink=0.6)
+    return fig
+
+
+def sweep_from_cli(args) -> int:
+
+    check_result_folder(args.out, "--out", "sweep")
+    result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
+                       ray=args.ray, processes=args.jobs, progress=not args.quiet, env_version=args.env_version)
+
+    s = result["summary"]
+    ranges = ", ".join(f"{p} {lo:g}-{hi:g} ({kind})" for p, (kind, lo, hi) in s["ranges"].items())
+    last = s['seed'] + s['plants'] - 1
+    title = (f"Sweep on task {s['task']}: {s['plants']} plants, episode seeds {s['seed']}-{last} of "
+             f"its held-out range, with {ranges}. Cost = severity / {COST_SCALES['severity_mm_s']} mm/s + tracking "
+             f"RMS / {COST_SCALES['tracking_um']} um; [95 % bootstrap intervals]")
+    print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"], "title": title,
+                        "cost_scales": dict(COST_SCALES), "controllers": s["controllers"]}))
+    files = write_sweep(result, args.out)
+    print(f"wrote {len(files)} files to {args.out}")
+    return 0

@@ -1,0 +1,323 @@
+"""Offline PID tuning for the baselines: grid search over log gains, then Nelder-Mead.
+
+The objective is the benchmark's mean episode cost (severity / 4.5 mm/s + tracking RMS / 10 um)
+over a fixed set of plants (the task's tuning seeds, disjoint from its held-out seeds), in the
+gain-schedule environment of the task with the gains held fixed. Many gain sets are evaluated in
+one batch: environment j runs gain set j // M on plant j % M.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from millvib_env.control.base import Controller
+from millvib_env.control.factory import oracle_table
+from millvib_env.control.lqr import LQRWeights, lqr_gains
+from millvib_env.control.policies import LQRPolicy
+from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
+from millvib_env.envs.batch import EpisodeBatch, env_id_for
+from millvib_env.envs.config import load_env_config
+from millvib_env.tasks import Task
+from millvib_env.evaluation.evaluate import run_episodes
+
+__all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable"]
+
+#: the coarse grid (log10 of KP, KI, KD) the search starts from
+GRID = (np.arange(4.0, 7.01, 0.25), np.array([-3.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]),
+        np.array([0.0, 1.0, 1.5, 2.0, np.log10(300.0)]))
+
+
+class ActionTable(Controller):
+    """A fixed action per environment (a batch of fixed-gain PIDs)."""
+
+    name = "gain-table"
+
+    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None, version: str = "v0"):
+        self.actions = np.asarray(actions, dtype=np.float32)
+        self.env_kwargs = dict(env_kwargs or {})
+        self.env_id = env_id_for("gain", version)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return self.actions, state
+
+
+#: the search bounds (V/m, V/(m s), V s/m, V/Pa, V/N) of the tunings with pressure feedback (and force
+#: feedforward)
+PF_BOUNDS = WIDE_BOUNDS
+
+
+def gain_env_kwargs(task: Task, n_gains: int, params: dict | None = None) -> dict:
+    """The gain-schedule env a tuning runs fixed gain sets of `n_gains` entries in: 3 = PID (the
+    task's own action bounds), 4 = + pressure feedback, 5 = + force feedforward (`PF_BOUNDS`).
+    `params` pins plant parameters (e.g. the nominal plant)."""
+    env_kwargs: dict = {"config": task.config}
+    if n_gains != 3:
+        env_kwargs["actions"] = wide_actions(n_gains)
+    if params:  # pin the plant: the randomised parameters are replaced by fixed ones
+        env_kwargs["randomize"] = {k: {"dist": "fixed", "low": v} for k, v in params.items()}
+    return env_kwargs
+
+
+def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task,
+               params: dict | None = None, chunk: int = 4096, version: str = "v0") -> np.ndarray:
+    """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`,
+    in environment version `version`.
+
+    `params` pins plant parameters (e.g. the nominal plant); otherwise each seed draws its plant.
+    Diverged episodes count with their scored cost (at least `DIVERGED_COST`: `evaluate.scored_cost`);
+    a non-finite cost counts as 1e6.
+    """
+    sets = np.atleast_2d(np.asarray(log_gain_sets, float))
+    env_kwargs = gain_env_kwargs(task, sets.shape[1], params)
+    gain_map = GainMap.from_config(load_env_config(**env_kwargs, version=version))
+    m = len(seeds)
+    costs = np.empty((sets.shape[0], m))
+    actions = gain_map.action(10.0 ** sets)
+    per_chunk = max(1, chunk // m)
+    for start in range(0, sets.shape[0], per_chunk):
+        block = actions[start:start + per_chunk]
+        table = ActionTable(np.repeat(block, m, axis=0), env_kwargs, version)
+        recs = run_episodes(table, list(seeds) * block.shape[0])
+        c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
+        costs[start:start + block.shape[0]] = c
+    return costs.mean(axis=1)
+
+
+def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: Task, params: dict | None = None,
+              refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0",
+              progress: str | None = None) -> "TuneResult":
+    """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
+    Nelder-Mead within `PF_BOUNDS` on the plants `seeds`."""
+    starts = np.atleast_2d(np.asarray(starts, float))
+    names = ("kp", "ki", "kd", "kpl", "kff")[:starts.shape[1]]
+    lo = np.log10([PF_BOUNDS[k][0] for k in names])
+    hi = np.log10([PF_BOUNDS[k][1] for k in names])
+    return _refine(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step_decades,
+                   xatol=0.01, fatol=1e-4, bounded=True, version=version, progress=progress)
+
+
+def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: Task,
+            params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
+            bounded: bool, version: str = "v0", progress: str | None = None) -> "TuneResult":
+    """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
+    by Nelder-Mead; never worse than that start. `bounded`: Nelder-Mead within [lo, hi], its first
+    simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains.
+    `progress`: a bar of that name counting the evaluations, with the best mean cost so far."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(desc=progress, unit="eval", disable=progress is None, leave=False)
+    with bar:
+        return _refine_in(starts, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=step,
+                          xatol=xatol, fatol=fatol, bounded=bounded, version=version, bar=bar)
+
+
+def _refine_in(starts, lo, hi, seeds, *, task, params, refine_iters, step, xatol, fatol, bounded, version,
+               bar) -> "TuneResult":
+    starts = np.clip(starts, lo, hi)
+    start_costs = mean_costs(starts, seeds, task=task, params=params, version=version)
+    best = starts[int(np.argmin(start_costs))]
+    n_eval = len(starts)
+    bar.update(n_eval)
+    lowest = [float(start_costs.min())]
+    bar.set_postfix(best=f"{lowest[0]:.4f}")
+
+    def objective(u: np.ndarray) -> float:
+        nonlocal n_eval
+        n_eval += 1
+        cost = float(mean_costs(np.clip(u, lo, hi)[None, :], seeds, task=task, params=params, version=version)[0])
+        bar.update(1)
+        if cost < lowest[0]:
+            lowest[0] = cost
+            bar.set_postfix(best=f"{cost:.4f}")
+        return cost
+
+    dim = len(best)
+    simplex = best + np.vstack([np.zeros(dim), step * np.eye(dim)])
+    extra = {}
+    if bounded:
+        simplex = np.where(simplex > hi, 2 * best - simplex, simplex)
+        extra["bounds"] = list(zip(lo, hi))
+    res = optimize.minimize(objective, best, method="Nelder-Mead", **extra,
+                            options={"maxiter": refine_iters, "xatol": xatol, "fatol": fatol,
+                                     "initial_simplex": simplex})
+    final, final_cost = np.clip(res.x, lo, hi), float(res.fun)
+    if final_cost > start_costs.min():
+        final, final_cost = best, float(start_costs.min())
+    return TuneResult(final, final_cost, best, float(start_costs.min()), n_eval)
+
+
+@dataclass
+class TuneResult:
+    log10_gains: np.ndarray
+    cost: float
+    grid_best: np.ndarray
+    grid_cost: float
+    n_evaluations: int
+
+    @property
+    def gains(self) -> list[float]:
+        return [float(g) for g in 10.0 ** self.log10_gains]
+
+
+def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=GRID,
+         refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
+    """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
+    gain_map = task.gain_map()
+    lo, hi = gain_map.log_lo, gain_map.log_hi
+    mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
+    return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
+                   xatol=0.02, fatol=1e-3, bounded=False, version=version, progress=progress)
+
+
+def plants_of(seeds: Sequence[int], task: Task, version: str = "v0") -> list:
+    """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
+
+    batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=task.config)
+    batch.reset(seeds)
+    return list(batch.core.params)
+
+
+def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: Task, chunk: int = 4096,
+              version: str = "v0") -> np.ndarray:
+    """Mean episode cost of the LQR reference with each of `weight_sets` (LQRWeights) over `seeds`.
+
+    Each plant's gains are designed for its true c1 and Ct, as `lqr-oracle` does; a design that
+    fails (no stabilising solution) costs 1e6.
+    """
+
+    env_kwargs: dict[str, Any] = {"config": task.config, **LQRPolicy.ENV_KWARGS}
+    cfg = load_env_config(**env_kwargs, version=version)
+    gain_map = GainMap.from_config(cfg)
+    dt_s = None if cfg.loop is None else cfg.loop.dt_s
+    plants = plants_of(seeds, task, version)
+    m = len(seeds)
+    rows, designed = [], []
+    for w in weight_sets:
+        for p in plants:
+            try:
+                g = lqr_gains(p, w, dt_s=dt_s)
+                designed.append(bool(np.all(np.isfinite(g))))
+            except (np.linalg.LinAlgError, ValueError):
+                g = np.zeros(4)
+                designed.append(False)
+            rows.append(gain_map.action(np.nan_to_num(g)))
+    actions = np.array(rows)
+    ok = np.array(designed).reshape(len(weight_sets), m)
+    costs = np.empty((len(weight_sets), m))
+    per_chunk = max(1, chunk // m)
+    for start in range(0, len(weight_sets), per_chunk):
+        block = actions[start * m:(start + per_chunk) * m]
+        k = len(block) // m
+        recs = run_episodes(ActionTable(block, env_kwargs, version), list(seeds) * k)
+        costs[start:start + k] = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(k, m)
+    costs[~ok] = 1e6
+    return costs.mean(axis=1)
+
+
+LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1e-4, 1e-2, 1.0, 100.0),
+            "r": (0.1, 1.0, 10.0, 100.0), "friction": ("stick", "sliding")}
+
+
+def tune_lqr(seeds: Sequence[int], *, task: Task, refine_iters: int = 40, version: str = "v0") -> dict:
+    """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
+
+    keys = ("q_v", "q_p", "q_i", "r")
+    grid = [dict(zip(keys + ("friction",), combo)) for combo in np.stack(np.meshgrid(
+        *[np.arange(len(LQR_GRID[k])) for k in keys + ("friction",)], indexing="ij"), -1).reshape(-1, 5)]
+    sets = [LQRWeights(**{k: LQR_GRID[k][int(c[k])] for k in keys + ("friction",)})  # type: ignore[arg-type]
+            for c in grid]
+    costs = lqr_costs(sets, seeds, task=task, version=version)
+    best = sets[int(np.argmin(costs))]
+    n_eval = len(sets)
+
+    def objective(u: np.ndarray) -> float:
+        nonlocal n_eval
+        n_eval += 1
+        return float(lqr_costs([LQRWeights(**dict(zip(keys, 10.0 ** u)), friction=best.friction)], seeds,
+                               task=task, version=version)[0])
+
+    x0 = np.log10([getattr(best, k) for k in keys])
+    res = optimize.minimize(objective, x0, method="Nelder-Mead",
+                            options={"maxiter": refine_iters, "xatol": 0.05, "fatol": 1e-3,
+                                     "initial_simplex": x0 + np.vstack([np.zeros(4), 0.5 * np.eye(4)])})
+    if res.fun < costs.min():
+        weights = {**dict(zip(keys, [float(v) for v in 10.0 ** res.x])), "friction": best.friction}
+        cost = float(res.fun)
+    else:
+        weights = {k: getattr(best, k) for k in keys + ("friction",)}
+        cost = float(costs.min())
+    weights = {"q_x": 1.0, **{k: (round(v, 6 - int(math.floor(math.log10(abs(v))))) if isinstance(v, float) else v)
+                              for k, v in weights.items()}}
+    return {"weights": weights, "tuning_cost": round(cost, 4), "grid_cost": round(float(costs.min()), 4),
+            "n_evaluations": n_eval}
+
+
+ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
+
+
+def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = ADAPTIVE_TAUS, table=None,
+                  version: str = "v0") -> dict:
+    """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
+    `table`, default the task's shipped pid-oracle table)."""
+    from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
+
+    cfg = task.env_config(version)
+    table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
+    costs: dict[float, float] = {}
+    for tau in taus:
+        ctrl = AdaptivePolicy(table, gain_map, EstimatorSettings(tau_s=tau), cfg.base_params,
+                              sample_rate_hz=cfg.sample_rate_hz)
+        ctrl.env_id = env_id_for("gain", version)
+        recs = run_episodes(ctrl, list(seeds), task=task)
+        costs[tau] = float(np.mean([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]))
+    tau = min(costs, key=lambda t: costs[t])
+    return {"estimator": {"tau_s": tau, "highpass_hz": EstimatorSettings().highpass_hz,
+                          "min_info": EstimatorSettings().min_info},
+            "tuning_costs": {str(k): round(v, 4) for k, v in costs.items()}}
+
+
+def optuna_storage(storage: str):
+    """An Optuna storage from a CLI string: ``journal:PATH`` (a journal file several machines can share
+    on a common file system) or a database URL (``sqlite:///tune.db``, ``postgresql://...``)."""
+    import optuna
+
+    if not isinstance(storage, str) or not (storage.startswith("journal:") or "://" in storage):
+        raise ValueError(f"--optuna {storage!r} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
+    try:
+        if storage.startswith("journal:"):
+            from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+            return JournalStorage(JournalFileBackend(storage[len("journal:"):]))
+        return optuna.storages.RDBStorage(storage)
+    except Exception as err:  # an unknown dialect, a driver not installed, a file that cannot be opened
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise ValueError(f"--optuna {storage!r} cannot be opened: {first[:200]}") from None
+
+
+def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: str, n_trials: int,
+                params: dict | None = None, sampler_seed: int | None = None, version: str = "v0") -> dict:
+    """PID gains by an Optuna study (TPE) over log10 KP, KI, KD in the action bounds, minimising the
+    mean cost on `seeds`; several processes or machines running this with the same storage and
+    study name share the study. Returns the study's best gains so far."""
+    import optuna
+
+    gain_map = task.gain_map()
+    lo, hi = gain_map.log_lo, gain_map.log_hi
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(study_name=study_name, storage=optuna_storage(storage), direction="minimize",
+                                load_if_exists=True, sampler=optuna.samplers.TPESampler(seed=sampler_seed))
+
+    def objective(trial) -> float:
+        u = np.array([trial.suggest_float(name, lo[k], hi[k]) for k, name in enumerate(("log10_kp", "log10_ki",
+                                                                                       "log10_kd"))])
+        return float(mean_costs(u[None, :], seeds, task=task, params=params, version=version)[0])
+
+    study.optimize(objective, n_trials=n_trials)
+    best = np.array([study.best_params[k] for k in ("log10_kp", "log10_ki", "log10_kd")])
+    return {"gains": [float(g) for g in 10.0 ** best], "log10_gains": [round(float(v), 4) for v in best],
+            "tuning_cost": round(float(study.best_value), 4), "n_trials": len(study.trials)}
