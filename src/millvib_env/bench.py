@@ -1,4 +1,4 @@
-"""`millvib bench`: speed of the integrators and of environment stepping.
+"""`millvib speed`: speed of the integrators and of environment stepping.
 
 Plant timings, all on the 10 kHz output grid, integration only (the auxiliary outputs are
 computed afterwards from the states, the same way for both methods):
@@ -54,7 +54,7 @@ def _median_wall(fn: Callable[[], float], repeats: int) -> float:
 #: simulated second of the nine cases, so a longer or more repeated run is refused, not started
 T_END_RANGE = (0.05, 5.0)
 MAX_REPEATS = 50
-#: plants in the batched-throughput row (`millvib bench --batch-size`)
+#: plants in the batched-throughput row (`millvib speed --batch-size`)
 BATCH_RANGE = (1, 4096)
 
 

@@ -6,6 +6,7 @@ import argparse
 import math
 import json
 import sys
+import textwrap
 from pathlib import Path
 
 DESCRIPTION = """\
@@ -19,7 +20,7 @@ fixed-gain PIDs.
 commands:
   simulate    one closed-loop run: severity, ISO zone, kind of motion, tracking error (--plot)
   reproduce   the paper's three studies (Figs. 4-9 analogues), stability and motion maps
-  bench       integrator and environment speed (the tables of docs/performance.md)
+  speed       integrator and environment speed (the tables of docs/performance.md; was 'bench')
   params      the plant parameters: symbol, default (Table 1), unit, meaning, allowed range
   scenarios   the named failure scenarios with the paper PID's measured outcome
   tasks       the benchmark's tasks (startup, rolling, change, varied) and their seed ranges
@@ -44,7 +45,7 @@ def _add_plant_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="paper", help="plant preset in configs/plant/ or a YAML path (default: paper)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="NAME=VALUE",
                    help="override a plant parameter, e.g. --set c1=2.25e5 --set Ct=5e-9 (SI units; "
-                        "`millvib params` lists them)")
+                        "'millvib params' lists them)")
     p.add_argument("--kp", type=float, default=1e5, help="proportional gain KP, V/m (default 1e5, the paper's)")
     p.add_argument("--ki", type=float, default=1e-3, help="integral gain KI, V/(m s) (default 1e-3)")
     p.add_argument("--kd", type=float, default=0.0, help="derivative gain KD, V s/m (default 0)")
@@ -162,8 +163,9 @@ def _cmd_reproduce(args) -> int:
     return 0
 
 
-def _cmd_bench(args) -> int:
+def _cmd_speed(args) -> int:
     from millvib_env._paths import check_output
+
 
     check_output(args.json, "--json")
     from millvib_env import bench
@@ -179,6 +181,8 @@ def _cmd_bench(args) -> int:
     if args.json:
         bench.save_json(result, args.json)
         print(f"\nwrote {args.json}")
+    if args.command == "bench":  # the earlier name, kept for one release
+        print("note: millvib bench is now 'millvib speed' ('bench' stays for one release)", file=sys.stderr)
     return 0
 
 
@@ -282,6 +286,15 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def _plain(doc: str | None) -> str:
+    """A module docstring as a command's help: its reST markup (``code``, `name`, :role:`name`) as plain text."""
+    import re
+
+    text = re.sub(r":[a-z]+:`([^`]+)`", r"\1", doc or "")
+    text = re.sub(r"``([^`]+)``", r"\1", text)
+    return re.sub(r"`([^`]+)`", r"\1", text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="millvib", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -326,19 +339,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_reproduce)
 
-    p = sub.add_parser("bench", help="integrator and environment throughput", description=(
+    speed_description = (
         "Measure in one run: wall time per simulated second of LSODA at rtol 1e-6 (scipy's solve_ivp, and ODEPACK's "
         "run whole in compiled code, the reference's default) and the fast "
         "integrator on the paper's nine cases with the fast one's error against a tight reference; batched "
         "throughput over random plants (1 s each); and environment steps per second (native VecEnv vs SB3 "
-        "DummyVecEnv)."))
-    p.add_argument("--t-end", type=float, default=1.0, help="simulated time per case, s (default 1.0)")
-    p.add_argument("--repeats", type=int, default=5, help="timing repeats per case, median taken (default 5)")
-    p.add_argument("--batch-size", type=int, default=256, help="plants in the batched-throughput row (default 256)")
-    p.add_argument("--plant-only", action="store_true", help="skip the environment benchmark")
-    p.add_argument("--json", metavar="PATH", help="also write the results as JSON")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=_cmd_bench)
+        "DummyVecEnv). (Controllers are compared by 'millvib benchmark'.)")
+    for name in ("speed", "bench"):  # bench: the earlier name, kept for one release and left out of the list
+        if name == "speed":
+            p = sub.add_parser(name, help="integrator and environment speed", description=speed_description)
+        else:  # no help: argparse leaves it out of the list
+            p = sub.add_parser(name, description=speed_description)
+        p.add_argument("--t-end", type=float, default=1.0, help="simulated time per case, s (default 1.0)")
+        p.add_argument("--repeats", type=int, default=5, help="timing repeats per case, median taken (default 5)")
+        p.add_argument("--batch-size", type=int, default=256,
+                       help="plants in the batched-throughput row (default 256)")
+        p.add_argument("--plant-only", action="store_true", help="skip the environment benchmark")
+        p.add_argument("--json", metavar="PATH", help="also write the results as JSON")
+        p.add_argument("--quiet", action="store_true", help="no progress bars")
+        p.set_defaults(func=_cmd_speed)
 
     p = sub.add_parser("params", help="list the plant parameters", description=(
         "List every field of MillParams (paper Table 1 and the project's additions): symbol, default, unit, "
@@ -359,10 +378,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     from millvib_env.training.cli_args import add_benchmark_args, add_train_args
 
-    add_train_args(sub.add_parser("train", help="train an agent", description=(
-        "Train a Stable-Baselines3 agent with the hyperparameters of configs/agents/<algo>.yml for the env id: "
-        "progress bar, TensorBoard logs, periodic evaluation, checkpoints, --resume, final model and "
-        "VecNormalize statistics.")), _cmd_train)
+    add_train_args(sub.add_parser("train", help="train an agent", description=textwrap.fill(
+        "Train a Stable-Baselines3 agent (SAC with sbx where installed) with the hyperparameters of a zoo-style "
+        "YAML file for the env id: progress bar, TensorBoard logs, periodic evaluation, checkpoints, --resume, "
+        "final model and VecNormalize statistics. --config picks the file: configs/agents/<algo>.yml by default "
+        "(a gain schedule over the absolute gain bounds); configs/agents/pf/<algo>.yml is the shipped agents' "
+        "(a relative action around pid-pf-robust, whose zero action is that controller), e.g.", 79) +
+        "\n\n  millvib train --algo ppo --task rolling --config configs/agents/pf/ppo.yml --select best",
+        formatter_class=argparse.RawDescriptionHelpFormatter), _cmd_train)
     add_benchmark_args(sub.add_parser("benchmark", help="controllers on held-out plants", description=(
         "Evaluate controllers (the baselines: pid-paper, pid-nominal, pid-robust, pid-oracle, pid-adaptive, "
         "lqr-oracle, pid-pf-robust, pid-pf-ff, pid-pf-oracle and, on v1, the MPC bounds mpc-oracle and mpc-preview; "
@@ -381,7 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
         "intervals, and each controller's share of it. --controllers adds or replaces rows.")), _cmd_headroom)
     from millvib_env.tuning.baselines import ENTRIES, __doc__ as tune_doc
 
-    p = sub.add_parser("tune", help="tune a task's classical baselines", description=tune_doc,
+    p = sub.add_parser("tune", help="tune a task's classical baselines", description=_plain(tune_doc),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="startup", help="task: startup, rolling, change or varied (default startup)")
     p.add_argument("--only", nargs="+", choices=ENTRIES, metavar="ENTRY",
@@ -412,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     from millvib_env.control.export import __doc__ as export_doc
 
     p = sub.add_parser("export", help="a trained agent as an ONNX graph, checked against the agent",
-                       description=export_doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=_plain(export_doc), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("agent", help="a shipped agent's name (millvib benchmark lists them) or an agent folder")
     p.add_argument("--seed", type=int, default=None, help="the training seed of a multi-seed agent (default: "
                                                           "its lowest)")
@@ -425,7 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
-                       description=distill_doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=_plain(distill_doc), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="rolling", help="task: startup, rolling, change or varied (default rolling)")
     p.add_argument("--teacher", default="mpc-preview", choices=["mpc-preview", "mpc-oracle"],
                    help="the oracle that labels every loop sample (default mpc-preview)")

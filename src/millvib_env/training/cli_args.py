@@ -26,7 +26,8 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="run each seed as a Ray task (1 CPU each): on a local cluster, or on the running cluster at "
                         "ADDRESS (e.g. auto, ray://head:10001); needs pip install -e '.[ray]'")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
-    p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml)")
+    p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml; the shipped agents' are "
+                        "configs/agents/pf/<algo>.yml)")
     p.add_argument("--log-dir", default="runs",
                    help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed> "
                         "(LOG_DIR/<algo>_<env>_<task>_s<seed> on rolling and change)")
