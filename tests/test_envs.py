@@ -218,6 +218,28 @@ def test_record_video_wrapper_works(tmp_path):
     assert list(folder.glob("*.mp4"))
 
 
+def test_the_render_window_is_kept_only_where_a_render_mode_asks_and_the_steps_are_the_same():
+    """The recent samples the render draws are kept where a render mode is set (or from a first render on), not
+    at every step of every run; what the steps return does not depend on it."""
+    from millvib_env.envs.vec_env import MillVibVecEnv
+
+    plain = gym.make("MillVib-Valve-v1", residual=True)
+    drawn = gym.make("MillVib-Valve-v1", residual=True, render_mode="rgb_array")
+    assert not plain.unwrapped.core.keep_history and drawn.unwrapped.core.keep_history
+    for env in (plain, drawn):
+        env.reset(seed=4)
+    for _ in range(6):
+        a, b = plain.step(np.full(1, 0.2, np.float32)), drawn.step(np.full(1, 0.2, np.float32))
+        assert np.array_equal(a[0], b[0]) and a[1:4] == b[1:4]
+    assert len(plain.unwrapped.core.history[0]["t"]) == 1 and len(drawn.unwrapped.core.history[0]["t"]) == 7
+    frame = drawn.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3
+    venv = MillVibVecEnv("MillVib-Valve-v1", 2, residual=True)
+    assert not venv.core.keep_history
+    venv.set_attr("render_mode", "rgb_array")
+    assert venv.core.keep_history
+
+
 def test_config_errors_name_the_key():
     with pytest.raises(ValueError, match="episode_s"):
         gym.make("MillVib-GainSchedule-v0", episode_s=-1.0)

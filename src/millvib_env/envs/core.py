@@ -163,7 +163,15 @@ class MillVibCore:
         #: when True, every step's info carries the period's measured signals ("signals"), as a mill's
         #: data acquisition records them (position, velocity, acceleration, pressures, valve command)
         self.record_signals = False
+        #: when True, the first environment keeps its recent samples for `render` (`envs.rendering`): the
+        #: environments set it where a render mode is given, and `render` where it is called without one set
+        self.keep_history = False
         self.history: list[dict] = [{}]
+        # index arrays every step uses (the environments and a period's control samples), and all-active flags
+        self._rows = np.arange(n)[:, None]
+        self._sub = np.arange(self.n_sub)
+        self._all = np.arange(n)
+        self._active = np.ones(n, dtype=np.bool_)
 
     # ------------------------------------------------------------------------------------------
     def gains_from_action(self, action: np.ndarray) -> np.ndarray:
@@ -267,9 +275,9 @@ class MillVibCore:
         if a.shape != (self.n, self.act_dim):
             raise ValueError(f"action has shape {np.shape(actions)}; expected ({self.n}, {self.act_dim})"
                              + (f" or ({self.act_dim},)" if self.n == 1 else ""))
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"action contains NaN or inf: {a.tolist()}; allowed range is [-1, 1]")
-        return np.clip(a, -1.0, 1.0)  # finite actions outside the Box are clipped, as Box actions are
+        return np.minimum(np.maximum(a, -1.0), 1.0)  # finite actions outside the Box are clipped, as Box actions are
 
     def step(self, actions: Any):
         """Advance every environment by one agent period. Returns obs, reward, terminated, truncated, infos."""
@@ -287,10 +295,10 @@ class MillVibCore:
             effort = a[:, 0] ** 2
         self.last_action = a
 
-        cols = self.k[:, None] * self.n_sub + np.arange(self.n_sub)
-        rows = np.arange(n)[:, None]
+        cols = self.k[:, None] * self.n_sub + self._sub
+        rows = self._rows
         xd_step, dfl_step = self.XD[rows, cols], self.DFL[rows, cols]
-        active = np.ones(n, dtype=np.bool_)
+        active = self._active
         p_max = 10.0 * float(self.P[:, P_PS].max())  # numerical guard only; the envelope below is physical
         if self.loop is None:
             kernel.advance_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step, active,
@@ -324,13 +332,13 @@ class MillVibCore:
         if self.loop is None:
             u_last = self.AUXS[:, -1, A_U]
             u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
-            obs = self._observe(np.arange(n), e=xd_step[:, -1] - last[:, IX], v=last[:, IV],
+            obs = self._observe(self._all, e=xd_step[:, -1] - last[:, IX], v=last[:, IV],
                                 a=self.AUXS[:, -1, A_ACC], pL=last[:, IPL], u_pid=u_pid)
         elif self.fresh:
-            obs = self._observe_sample(np.arange(n), a=self.AUXS[:, -1, A_ACC])
+            obs = self._observe_sample(self._all, a=self.AUXS[:, -1, A_ACC])
         else:  # what the controller read at its last sample: the same sensors
             cs = self.CS
-            obs = self._observe(np.arange(n), e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
+            obs = self._observe(self._all, e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
                                 pL=cs[:, K_PM], u_pid=cs[:, K_UCTRL] if self.residual else np.zeros(n))
         out_obs = self.observer.push(obs)
 
@@ -521,7 +529,9 @@ class MillVibCore:
                 "pl_min_pa": float(rec[5]), "pl_max_pa": float(rec[6])}
 
     def _record_history(self) -> None:
-        """Keep the first environment's recent samples for rendering."""
+        """Keep the first environment's recent samples for rendering (where `keep_history`)."""
+        if not self.keep_history:
+            return
         h = self.history[0]
         h["t"].append(self.T[0])
         h["x"].append(self.YS[0, 1:, IX].copy())

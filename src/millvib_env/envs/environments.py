@@ -40,6 +40,7 @@ class MillVibEnv(gym.Env):
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
+        self.core.keep_history = render_mode is not None  # the render's recent samples: kept only where drawn
         self._figure = None
         self._episode_over = True  # until the first reset
 

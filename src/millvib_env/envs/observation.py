@@ -39,7 +39,12 @@ def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
 def _slog(q: np.ndarray, q0, denom) -> np.ndarray:
     """`slog` with its denominator ln(1 + q_max/q0) given; q0 and denom may be columns, one per row of q
     (several channels scaled in one set of numpy calls, the same arithmetic as one call per channel)."""
-    return np.clip(np.sign(q) * np.log1p(np.abs(q) / q0) / denom, -1.0, 1.0)
+    return _clip1(np.sign(q) * np.log1p(np.abs(q) / q0) / denom)
+
+
+def _clip1(q: np.ndarray) -> np.ndarray:
+    """`q` clipped to [-1, 1]: np.clip's numbers (NaN stays NaN) without its wrappers' cost per call."""
+    return np.minimum(np.maximum(q, -1.0), 1.0)
 
 
 #: the channels built together (`Observer.build`), and their q0 and ln(1 + q_max/q0) as columns
@@ -104,8 +109,10 @@ class Observer:
         used = self._noise_used[idx]
         rows = self._noise_z.shape[1]
         z = self._noise_z[idx, np.minimum(used, rows - 1)]
-        for j in np.flatnonzero(used >= rows):  # past the block: straight from the stream
-            z[j] = self._noise_rng[idx[j]].standard_normal(3)
+        past = used >= rows
+        if past.any():
+            for j in np.flatnonzero(past):  # past the block: straight from the stream
+                z[j] = self._noise_rng[idx[j]].standard_normal(3)
         self._noise_used[idx] = used + 1
         return z * self._noise_scale
 
@@ -122,11 +129,11 @@ class Observer:
         if self.noise is not None:
             noise = self._noise(np.asarray(idx))
             e, v, a = e - noise[:, 0], v + noise[:, 1], a + noise[:, 2]
-        err, vel, acc, vib = _slog(np.stack([e, v, a, vib_rms * 1e3]), _ROW_Q0, _ROW_DENOM)  # _ROW_CHANNELS
-        cols = [err, vel, acc, np.clip((pL - ps / 2) / ps, -1, 1), vib]
+        err, vel, acc, vib = _slog(np.array([e, v, a, vib_rms * 1e3]), _ROW_Q0, _ROW_DENOM)  # _ROW_CHANNELS
+        cols = [err, vel, acc, _clip1((pL - ps / 2) / ps), vib]
         cols += list(np.atleast_2d(control).T) if self.mode == "gain" else [control]
         if self.mode == "valve" and self.residual:
-            cols.append(np.clip(u_pid, -1, 1))
+            cols.append(_clip1(u_pid))
         if self.observe_phase:
             cols += [np.sin(phase), np.cos(phase)]
         if self.observe_params:
@@ -139,7 +146,7 @@ class Observer:
             df, dxd = preview
             cols += list(slog(np.asarray(df, float), *OBS_SCALES["load_force"][2:]).T)
             cols += list(slog(np.asarray(dxd, float), *OBS_SCALES["error"][2:]).T)
-        rows = np.stack(cols, axis=1).astype(np.float32)
+        rows = np.array(cols, dtype=np.float64).T.astype(np.float32, order="C")  # (environments, channels)
         if self.history_samples:  # filled by start / push, which see every step of every environment
             rows = np.concatenate([rows, np.zeros((len(rows), len(self.names) - self._n_now), np.float32)], axis=1)
         return rows

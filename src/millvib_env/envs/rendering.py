@@ -47,6 +47,7 @@ def render_frame(core, figure=None, *, human: bool = False):
     import matplotlib.pyplot as plt
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+    core.keep_history = True  # from now on, where no render mode asked for it at the start
     h = core.history[0]
     if figure is None:
         figure = plt.figure(figsize=(6.4, 4.8), dpi=80)

@@ -43,6 +43,7 @@ class MillVibVecEnv(VecEnv):
         self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
                                 observe_phase=observe_phase, extra_disturbances=extra_disturbances,
                                 reward_fn=reward_fn, envelope_fn=envelope_fn)
+        self.core.keep_history = render_mode is not None  # the render's recent samples: kept only where drawn
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)
         self._actions: np.ndarray | None = None
         self._figure = None
@@ -107,6 +108,7 @@ class MillVibVecEnv(VecEnv):
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         if attr_name == "render_mode":
             self.render_mode = value
+            self.core.keep_history = self.core.keep_history or value is not None
             return
         raise AttributeError(f"setting {attr_name!r} on a batched MillVib env is not supported; make a new one")
 
