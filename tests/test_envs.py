@@ -636,8 +636,14 @@ def test_a_base_controller_that_the_loop_cannot_run_is_refused_in_one_line():
         def loop_gains(self):
             return [1.0, float("nan"), 0.0]
 
-    with pytest.raises(ValueError, match="3 to 5 finite gains"):
-        gym.make("MillVib-GainSchedule-v1", base_controller=Broken())
+    class Raises:
+        def loop_gains(self):
+            raise TypeError("no gains here")
+
+    for bad in (Broken(), Raises()):
+        with pytest.raises(ValueError, match="3 to 5 finite gains") as info:
+            gym.make("MillVib-GainSchedule-v1", base_controller=bad)
+        assert "\n" not in str(info.value)
 
 
 def test_an_env_config_is_immutable_and_still_pickles_and_copies():

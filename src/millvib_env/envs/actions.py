@@ -71,12 +71,13 @@ def base_controller_overrides(mode: str, residual: bool, controller: Any, overri
         raise ValueError(f"base_controller = {shown(controller)} is invalid: a fixed controller with loop_gains() "
                          "(a PIDGains, or a fixed-gain baseline from load_controller, e.g. 'pid-pf-robust')")
     try:
-        gains = [float(g) for g in controller.loop_gains()]
-    except (TypeError, ValueError):
-        gains = []
+        given: Any = controller.loop_gains()
+        gains = [float(g) for g in given]
+    except (TypeError, ValueError) as err:
+        given, gains = f"an error ({type(err).__name__})", []
     if not 3 <= len(gains) <= 5 or not all(np.isfinite(gains)) or min(gains) < 0:
-        raise ValueError(f"base_controller {shown(controller)} gives loop_gains() = {shown(controller.loop_gains())}:"
-                         " 3 to 5 finite gains >= 0 (KP, KI, KD[, KPL[, KFF]]) are needed")
+        raise ValueError(f"base_controller {shown(controller)} gives loop_gains() = {shown(given)}: 3 to 5 finite "
+                         "gains >= 0 (KP, KI, KD[, KPL[, KFF]]) are needed")
     acts = out.get("actions")
     acts = dict(acts) if isinstance(acts, Mapping) else {}
     if mode == "valve":
