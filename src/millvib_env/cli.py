@@ -242,7 +242,8 @@ def _cmd_export(args) -> int:
     summary = export_agent(args.agent, args.out, seed=args.seed, check_steps=args.check_steps,
                            latency_calls=args.latency_calls)
     print(json.dumps(summary, indent=2))
-    print(f"wrote {args.out}")
+    print(f"wrote {args.out} (run it without torch: millvib benchmark --task {summary['task']} --controllers "
+          f"{args.out})")
     return 0
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller
+from millvib_env.control.onnx_policy import OnnxPolicy, is_onnx_name
 from millvib_env.control.registry import REGISTRY, baseline_names
 from millvib_env.control.tuned import control_config_path, control_entry, load_control_config, oracle_table
 from millvib_env.envs.actions import GainMap
@@ -23,8 +24,9 @@ __all__ = ["load_controller", "load_control_config", "control_entry", "control_c
 
 def load_controller(name: str, task: str | Task | None = None, config: EnvConfig | None = None,
                     seed: int | None = None, version: str = "v0") -> Controller:
-    """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>) or
-    an agent folder path. `seed` picks a training seed of a multi-seed agent (default: its lowest).
+    """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>),
+    an agent folder path or an exported agent's ONNX graph (``*.onnx``, `control.onnx_policy`: no torch). `seed`
+    picks a training seed of a multi-seed agent (default: its lowest; a graph holds one).
     `task` defaults to the agent's own (startup for a baseline); an agent trained on another task
     than the one asked for is refused. A baseline runs in environment version `version` with the gains
     tuned for it (`control_config_path`); an agent runs in the version it was trained in."""
@@ -38,19 +40,33 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
     if name not in REGISTRY:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
+        if is_onnx_name(name):
+            return _exported(name, t if task is not None else None, seed)
         seeds = agent_seed_folders(agent_folder(name))
         if seed is None:
             seed = next(iter(seeds))
         if seed not in seeds:
             raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
-        agent = AgentPolicy(seeds[seed])
-        if task is not None and t.name != agent.task.name:
-            raise ValueError(f"agent {name!r} was trained on task {agent.task.name!r}, not {t.name!r}: "
-                             f"run it with task {agent.task.name!r}")
-        return agent
+        return _on_task(AgentPolicy(seeds[seed]), name, t if task is not None else None)
     gain_map = GainMap.from_config(config) if config is not None else t.gain_map()
     entry = REGISTRY[name]
     ctrl = entry.build(name, t, version, config or t.env_config(version), gain_map)
     ctrl.task = t
     ctrl.env_id = env_id_for(entry.env_mode, version)
     return ctrl
+
+
+def _on_task(agent: AgentPolicy | OnnxPolicy, name: str, task: Task | None):
+    """`agent`, where `task` is None or the one it was trained on."""
+    if task is not None and task.name != agent.task.name:
+        raise ValueError(f"agent {name!r} was trained on task {agent.task.name!r}, not {task.name!r}: "
+                         f"run it with task {agent.task.name!r}")
+    return agent
+
+
+def _exported(path: str, task: Task | None, seed: int | None) -> OnnxPolicy:
+    """An exported agent's graph (`OnnxPolicy`); it holds one training seed, the one exported."""
+    policy = OnnxPolicy(path)
+    if seed is not None and seed != policy.seed:
+        raise ValueError(f"{path} holds training seed {policy.seed} of agent {policy.agent!r}, not seed {seed}")
+    return _on_task(policy, path, task)

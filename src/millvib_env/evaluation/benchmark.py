@@ -149,7 +149,7 @@ def episode_records(name: str, task: Task, seeds: list[int], env_id: str = "Mill
 
 
 def _run(ctrl: Controller, seeds, task: Task, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
-    is_agent = ctrl.card is not None
+    is_agent = ctrl.seed is not None  # a trained policy: an agent, or its exported graph
     recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=task, env_kwargs=env_kwargs, **kw)
     if is_agent:
         for r in recs:
@@ -177,8 +177,8 @@ def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, pro
             loaded[(n, None)] = own[n]
             continue
         first = load_controller(n, task, version=version)
-        if first.card is not None:
-            for s in (agent_seeds(n) if all_seeds else [first.seed]):
+        if first.seed is not None:  # a trained policy (an exported graph holds one seed)
+            for s in (agent_seeds(n) if all_seeds and first.card is not None else [first.seed]):
                 units.append((n, s))
                 if s == first.seed:
                     loaded[(n, s)] = first
@@ -247,7 +247,8 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, e
     if ray is not None or processes > 1:
         jobs = [{"name": n, "task": task, "seeds": chunk, "env_id": env_id, "agent_seed": s}
                 for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
-        agents = any(s is not None for _, s in units)  # the workers then import torch and SB3 once
+        # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
+        agents = any(c.card is not None for c in loaded.values())
         parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"benchmark {task.name} ({'ray' if ray is not None else f'{processes} processes'})",
                          preload=("torch", "stable_baselines3") if agents else ())
