@@ -56,6 +56,7 @@ def test_a_baseline_or_a_bad_path_is_refused_in_one_line(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow  # imports JAX: seconds
 def test_an_sbx_sac_is_sb3s_sac_weight_for_weight():
     """sbx's SAC copied into SB3's (`control.sbx_to_sb3`): the deterministic actions and both critics' values agree
     within float32 rounding (JAX and torch sum in their own order), on observations beyond the usual range."""
