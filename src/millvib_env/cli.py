@@ -93,11 +93,11 @@ def _plot_run(run, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from millvib_env._figures import panel_grid
     from millvib_env._paths import save_figure
 
-    fig, ax = plt.subplots(2, 2, figsize=(11, 6.5))
+    fig, ax, _ = panel_grid(2, 2, width=5.5, height=3.1, colorbar=False, suptitle=0.35,
+                            margins=(0.75, 0.15, 0.55, 0.35))
     ax[0, 0].plot(run.t * 1e3, run.x * 1e3)
     ax[0, 0].set(xlabel="t (ms)", ylabel="x (mm)", title="displacement")
     ax[0, 1].plot(run.x * 1e3, run.v * 1e3, lw=0.7)
@@ -120,7 +120,6 @@ def _plot_run(run, path: Path) -> None:
     if not run.diverged:
         title += f": severity {run.severity():.3g} mm/s (zone {run.iso_zone()})"
     fig.suptitle(title)
-    fig.tight_layout()
     save_figure(fig, path)
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._checks import integer
+from millvib_env._figures import panel_grid
 from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.linear import Friction, critical_kp, stability_maps
@@ -77,9 +78,10 @@ def run_studies(t_end: float = 1.0, method: str = "fast") -> tuple[list[CaseResu
 
 def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: float = 0.06,
                 tail_s: float = 0.05) -> Path:
-    import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 4, figsize=(19, 4.2))
+    fig, grid, _ = panel_grid(1, 4, width=19 / 4, height=4.2, colorbar=False, suptitle=0.35,
+                              margins=(1.0, 0.15, 0.55, 0.35))
+    axes = grid[0]
     for case, run in zip(study.cases, runs):
         k = run.t <= zoom_s
         axes[0].plot(run.t[k] * 1e3, run.x[k] * 1e3, label=case.label)
@@ -96,15 +98,14 @@ def _plot_study(study: PaperStudy, runs: list[SimResult], out: Path, zoom_s: flo
         ax.legend(fontsize=8)
     fig.suptitle(f"Study of {study.symbol} (paper {study.figures.split('-')[0].replace('Figs.', 'Fig.')}): "
                  "KP = %.3g, KI = %.3g, x0 = 1 mm" % (runs[0].gains.kp, runs[0].gains.ki))
-    fig.tight_layout()
     path = save_figure(fig, out / f"study_{study.key}_time_phase.png")
     return path
 
 
 def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> Path:
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, grid, _ = panel_grid(1, 1, width=5.5, height=4, colorbar=False, margins=(0.75, 0.15, 0.5, 0.35))
+    ax = grid[0, 0]
     labels = [r.label for r in results]
     vals = [r.severity_mm_s for r in results]
     bars = ax.bar(range(len(vals)), vals, color="tab:blue")
@@ -113,11 +114,11 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
                     ha="center", va="bottom", fontsize=8)
     ax.set_xticks(range(len(vals)), labels, fontsize=8)
     ax.set_ylabel("vibration severity (mm/s RMS, 10-1000 Hz)")
+    ax.margins(y=0.15)  # room above the tallest bar for its label
     if max(vals) / max(min(vals), 1e-9) > 50:
         ax.set_yscale("log")
     ax.set_title(f"Severity vs {study.symbol} (paper Fig. {study.figures.split('-')[-1].strip()})")
     ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
     path = save_figure(fig, out / f"study_{study.key}_severity.png")
     return path
 
@@ -125,7 +126,6 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
 def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
                 processes: int = 1) -> tuple[Path, Path]:
     """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal."""
-    import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
@@ -144,7 +144,8 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
         sev[i, j] = np.nan if run.diverged else run.severity()
         rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
                      "severity_mm_s": f"{sev[i, j]:.4f}"})
-    fig, ax = plt.subplots(figsize=(7, 5))
+    fig, grid_ax, _ = panel_grid(1, 1, width=7, height=5, colorbar=False, margins=(0.95, 0.2, 0.55, 0.35))
+    ax = grid_ax[0, 0]
     colors = ["#cfe8cf", "#f6c177", "#e06c75", "#555555"]
     cmap = ListedColormap(colors)
     ax.pcolormesh(kps, c1s, grid, cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
@@ -166,7 +167,6 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
                 label=f"linear KP_crit ({friction})")
     ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)
     ax.legend(loc="lower left", fontsize=8)
-    fig.tight_layout()
     png = save_figure(fig, out / "motion_map_c1_kp.png")
     csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
     return png, csv_path
@@ -174,12 +174,12 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
 
 def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes: int = 1) -> tuple[Path, Path]:
     """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
-    import matplotlib.pyplot as plt
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     cts = np.geomspace(*studied_range("Ct"), n_ct)
     stick, slide = stability_maps(c1s, cts, frictions=("stick", "sliding"), progress=progress, processes=processes)
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, grid, _ = panel_grid(1, 2, width=6, height=4.5, colorbar=False, margins=(0.85, 0.15, 0.55, 0.35))
+    axes = grid[0]
     picks_ct = [0, n_ct // 2, n_ct - 1]
     picks_c1 = [0, n_c1 // 2, n_c1 - 1]
     for j, color in zip(picks_ct, ("C0", "C1", "C2")):
@@ -198,7 +198,6 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes
         ax.legend(fontsize=7)
     axes[0].set_title("Critical KP vs damping (KI = 0.001)")
     axes[1].set_title("Critical KP vs leakage (KI = 0.001)")
-    fig.tight_layout()
     png = save_figure(fig, out / "stability_map.png")
     rows = [{"c1": f"{c1s[i]:.6g}", "Ct": f"{cts[j]:.6g}", "kp_crit_stick": f"{stick[i, j]:.6g}",
              "kp_crit_sliding": f"{slide[i, j]:.6g}"} for i in range(n_c1) for j in range(n_ct)]

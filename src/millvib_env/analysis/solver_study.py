@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._checks import integer
+from millvib_env._figures import panel_grid
 from millvib_env._paths import save_figure
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.studies import PAPER_STUDIES
@@ -177,11 +178,11 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     cases = list(dict.fromkeys(r.case for r in rows))
     default, converged = rows[0].solver, rows[-1].solver
-    fig, axes = plt.subplots(3, 3, figsize=(12, 10))
+    fig, axes, _ = panel_grid(3, 3, width=4, height=10 / 3, colorbar=False, suptitle=0.35,
+                              margins=(0.75, 0.1, 0.55, 0.35))
     for ax, case in zip(axes.flat, cases):
         for name, color in ((default, "tab:red"), (converged, "tab:blue")):
             run = runs.get((case, name))
@@ -195,10 +196,10 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
     axes[0, 0].legend(fontsize=7)
     fig.suptitle("Phase portraits of the last 0.4 s: ode45's default tolerances (red) against the converged "
                  "solution (blue)")
-    fig.tight_layout()
     files = [save_figure(fig, out / "solver_study_phase.png", dpi=90)]
 
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, grid, _ = panel_grid(1, 1, width=8, height=5, colorbar=False, margins=(0.95, 0.2, 0.55, 0.35))
+    ax = grid[0, 0]
     for k, case in enumerate(cases):
         rs = [r for r in rows if r.case == case and "max step" not in r.solver]
         tol = [r.rtol for r in rs]
@@ -208,6 +209,5 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
     ax.invert_xaxis()
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    fig.tight_layout()
     files.append(save_figure(fig, out / "solver_study_amplitude.png", dpi=100))
     return files

@@ -28,6 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from millvib_env._checks import integer, shown
+from millvib_env._figures import panel_grid
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
@@ -651,9 +652,10 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    fig, grid, _ = panel_grid(4, 1, width=10, height=2.5, colorbar=False, margins=(0.85, 0.2, 0.55, 0.35),
+                              sharex=True)
+    axes = grid[:, 0]
     u_max = task.env_config(version).base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
@@ -675,7 +677,7 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
                                            "fixed PIDs against agents")
         axes[0].set_ylim(-600, 1050)
     else:
-        axes[0].set(ylabel="x (um)", title=f"Task '{task}', held-out plant {seed}: {tr['info']['params']}"[:110])
+        axes[0].set(ylabel="x (um)", title=f"Task '{task.name}', held-out plant {seed}: {tr['info']['params']}"[:110])
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
     axes[2].set(ylabel="u (V)", title="valve command" + (f" (the amplifier's +-{u_max:g} V dashed)"
@@ -683,7 +685,6 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
     axes[3].set(ylabel="log10 KP", title="the PID's KP (gain schedules; gaps: KP <= 0)", xlabel="t (ms)")
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.tight_layout()
     return save_figure(fig, path, dpi=100)
 
 
@@ -691,13 +692,12 @@ def _plot_plane(result: dict, path: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
     names = list(result["records"])
     cols = min(3, len(names))
     rows = math.ceil(len(names) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 4.2 * rows), squeeze=False, layout="constrained")
+    fig, axes, cax = panel_grid(rows, cols, width=4.8, height=4.2)
     all_sev = [r["severity_mm_s"] for recs in result["records"].values() for r in recs]
     norm = LogNorm(vmin=max(min(all_sev), 1e-2), vmax=max(all_sev))
     for ax, name in zip(axes.flat, names):
@@ -713,7 +713,7 @@ def _plot_plane(result: dict, path: Path) -> Path:
         ax.title.set_fontsize(9)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
-    fig.colorbar(sc, ax=axes, label="episode severity (mm/s)", shrink=0.6)
+    fig.colorbar(sc, cax=cax, label="episode severity (mm/s)")
     return save_figure(fig, path, dpi=100)
 
 
@@ -723,7 +723,6 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
 
     ref_name = result.get("reference", "pid-robust")
@@ -731,7 +730,7 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
     names = [n for n in result["records"] if n != ref_name]
     cols = min(3, len(names))
     rows = math.ceil(len(names) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.8 * cols, 4.2 * rows), squeeze=False, layout="constrained")
+    fig, axes, cax = panel_grid(rows, cols, width=4.8, height=4.2, suptitle=0.45)
     diffs = {}
     for name in names:
         per_plant: dict = {}
@@ -752,8 +751,7 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
         ax.title.set_fontsize(9)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
-    fig.colorbar(sc, ax=axes, label=f"cost vs {ref_name} on the plant (%, blue = cheaper)", shrink=0.6,
-                 extend="both")
+    fig.colorbar(sc, cax=cax, label=f"cost vs {ref_name} on the plant (%, blue = cheaper)", extend="both")
     fig.suptitle(f"Task {result['task']}: paired cost difference to {ref_name} per held-out plant "
                  "(c1, Ct at the episode start)", fontsize=10)
     return save_figure(fig, path, dpi=100)
@@ -763,17 +761,15 @@ def _plot_bars(result: dict, path: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     names = list(result["controllers"])
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for ax, key, label in zip(axes, ("severity_mean", "tracking_rms_um_mean", "cost_mean"),
+    fig, grid, _ = panel_grid(1, 3, width=13 / 3, height=4.6, colorbar=False, margins=(0.7, 0.2, 1.2, 0.35))
+    for ax, key, label in zip(grid[0], ("severity_mean", "tracking_rms_um_mean", "cost_mean"),
                               ("mean severity (mm/s)", "mean tracking RMS (um)", "mean cost")):
         ax.bar(range(len(names)), [result["controllers"][n][key] for n in names], color="tab:blue")
         ax.set_xticks(range(len(names)), names, rotation=30, ha="right", fontsize=8)
         ax.set_title(label)
         ax.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
     return save_figure(fig, path, dpi=100)
 
 

@@ -19,6 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from millvib_env._checks import integer, strings
+from millvib_env._figures import panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.factory import load_controller
 from millvib_env.distributed import run_jobs
@@ -105,7 +106,6 @@ def _maps(result: dict):
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
     from matplotlib.ticker import NullFormatter
 
@@ -115,8 +115,7 @@ def _maps(result: dict):
     pairs = pairs or [(params[0], "c1" if params[0] != "c1" else "Ct")]
     costs = [r["cost"] for recs in result["records"].values() for r in recs if math.isfinite(r["cost"])]
     norm = LogNorm(vmin=max(min(costs), 1e-3), vmax=max(costs))
-    fig, axes = plt.subplots(len(names), len(pairs), figsize=(4.5 * len(pairs), 3.8 * len(names)), squeeze=False,
-                             layout="constrained")
+    fig, axes, cax = panel_grid(len(names), len(pairs), width=4.5, height=3.8)
     for row, name in enumerate(names):
         recs = result["records"][name]
         for col, (px, py) in enumerate(pairs):
@@ -129,7 +128,7 @@ def _maps(result: dict):
                 if RANGES[p][0] == "loguniform":
                     getattr(ax, f"set_{axis}scale")("log")
                     getattr(ax, f"{axis}axis").set_minor_formatter(NullFormatter())
-    fig.colorbar(sc, ax=axes, label="episode cost", shrink=0.6)
+    fig.colorbar(sc, cax=cax, label="episode cost")
     return fig
 
 
