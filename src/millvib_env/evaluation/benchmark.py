@@ -677,7 +677,10 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
                                            "fixed PIDs against agents")
         axes[0].set_ylim(-600, 1050)
     else:
-        axes[0].set(ylabel="x (um)", title=f"Task '{task.name}', held-out plant {seed}: {tr['info']['params']}"[:110])
+        plant = ", ".join(f"{k} = {v:.3g}" for k, v in tr["info"]["params"].items() if isinstance(v, (int, float)))
+        title = f"Task '{task.name}', held-out plant {seed}: {plant}"
+        axes[0].set(ylabel="x (um)", title=title if len(title) <= 120 else title[:title.rindex(", ", 0, 120)] + ", ...")
+        axes[0].title.set_fontsize(9)
     axes[0].legend(fontsize=8)
     axes[1].set(ylabel="v (mm/s)")
     axes[2].set(ylabel="u (V)", title="valve command" + (f" (the amplifier's +-{u_max:g} V dashed)"
