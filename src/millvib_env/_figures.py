@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["panel_grid"]
+__all__ = ["panel_grid", "log_span"]
 
 #: space around each panel's axes, inches: left (y tick labels and label), right, bottom (x tick labels and label),
 #: top (a title of two lines)
@@ -56,3 +56,20 @@ def panel_grid(rows: int, cols: int, *, width: float, height: float, colorbar: b
         cax = fig.add_axes(((cols * width + _CBAR_GAP) / fig_w, (grid_h - span) / 2 / fig_h, _CBAR_W / fig_w,
                             span / fig_h))
     return fig, axes, cax
+
+
+def log_span(ax, axis: str, values, min_decades: float = 1.0, pad: float = 1.25) -> None:
+    """Log-scale `axis` ("x" or "y") of `ax` over `values`, at least `min_decades` wide (around their geometric
+    middle) and padded by the factor `pad` each side: a few close values would otherwise get ticks at 1.2 x 10^6,
+    1.4 x 10^6, ..., whose labels outgrow the fixed margins."""
+    import math
+
+    finite = [float(v) for v in values if v > 0 and math.isfinite(v)]
+    getattr(ax, f"set_{axis}scale")("log")
+    if not finite:
+        return
+    lo, hi = min(finite), max(finite)
+    if hi / lo < 10.0 ** min_decades:
+        mid, half = math.sqrt(lo * hi), 10.0 ** (min_decades / 2)
+        lo, hi = mid / half, mid * half
+    getattr(ax, f"set_{axis}lim")(lo / pad, hi * pad)

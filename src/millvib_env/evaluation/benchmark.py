@@ -28,7 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from millvib_env._checks import integer, shown
-from millvib_env._figures import panel_grid
+from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
@@ -711,7 +711,9 @@ def _plot_plane(result: dict, path: Path) -> Path:
             if r["diverged"]:
                 ax.scatter(r["Ct"], r["c1"], marker="x", color="red", s=60)
         s = result["controllers"][name]
-        ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
+        log_span(ax, "x", [r["Ct"] for r in recs])
+        log_span(ax, "y", [r["c1"] for r in recs])
+        ax.set(xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
                title=f"{name}\nmean {s['severity_mean']:.3g} mm/s, cost {s['cost_mean']:.3g}")
         ax.title.set_fontsize(9)
     for ax in list(axes.flat)[len(names):]:
@@ -747,7 +749,9 @@ def _plot_paired_plane(result: dict, path: Path) -> Path:
         sc = ax.scatter([ref[k]["Ct"] for k in keys], [ref[k]["c1"] for k in keys], c=[diffs[name][k] for k in keys],
                         norm=norm, cmap="RdBu_r", s=28, edgecolors="k", linewidths=0.2)
         pr = result["controllers"][name].get("paired", {}).get(ref_name, {})
-        ax.set(xscale="log", yscale="log", xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
+        log_span(ax, "x", [ref[k]["Ct"] for k in keys])
+        log_span(ax, "y", [ref[k]["c1"] for k in keys])
+        ax.set(xlabel="Ct (m^3/(s Pa))", ylabel="c1 (N s/m)",
                title=f"{name} ({result['controllers'][name]['n_seeds']} seed(s))\nmean "
                      f"{100 * pr.get('cost_diff_rel', math.nan):+.1f} %, better on "
                      f"{100 * pr.get('p_improvement', math.nan):.0f} % of episodes")

@@ -19,7 +19,7 @@ from typing import Sequence
 import numpy as np
 
 from millvib_env._checks import integer, strings
-from millvib_env._figures import panel_grid
+from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.factory import load_controller
 from millvib_env.distributed import run_jobs
@@ -126,7 +126,7 @@ def _maps(result: dict):
             ax.title.set_fontsize(9)
             for axis, p in (("x", px), ("y", py)):
                 if RANGES[p][0] == "loguniform":
-                    getattr(ax, f"set_{axis}scale")("log")
+                    log_span(ax, axis, [r[p] for r in recs])
                     getattr(ax, f"{axis}axis").set_minor_formatter(NullFormatter())
     fig.colorbar(sc, cax=cax, label="episode cost")
     return fig
