@@ -77,3 +77,28 @@ def test_the_studies_in_processes_give_the_numbers_of_one_process():
         if key != "rows":
             np.testing.assert_array_equal(runs[1][key].states, runs[2][key].states)
             np.testing.assert_array_equal(runs[1][key].aux, runs[2][key].aux)
+
+
+@pytest.mark.slow  # short studies and maps, drawn: seconds
+def test_reproduces_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
+    """Reproduce's figures are placed at fixed margins (`_figures.panel_grid`): the studies' time and phase plots,
+    their severity bars, the motion and stability maps and the solver study's two figures keep their texts inside
+    and their panels apart (tests/test_protocol.py's check), on short runs and coarse maps."""
+    import matplotlib.pyplot as plt
+
+    import millvib_env.analysis.paper as paper
+    import millvib_env.analysis.solver_study as study
+    from tests.test_protocol import _texts_inside_and_panels_apart
+
+    drawn = []
+    for module in (paper, study):
+        monkeypatch.setattr(module, "save_figure", lambda fig, path, dpi=110: drawn.append(fig) or path)
+    paper.reproduce(tmp_path / "r", t_end=0.1, map_resolution=3, progress=False, solver_study=False)
+    case = (PAPER_STUDIES[0], PAPER_STUDIES[0].cases[0])
+    rows, runs = study.run_solver_study(0.2, solvers=(study.SOLVERS[0], study.SOLVERS[-1]), progress=False,
+                                        cases=[case])
+    study.plot_solver_study(rows, runs, tmp_path)
+    assert len(drawn) == 10
+    for fig in drawn:
+        _texts_inside_and_panels_apart(fig)
+        plt.close(fig)

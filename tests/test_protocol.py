@@ -229,17 +229,39 @@ def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
         run_benchmark(["pid-robust"], jobs=0, **kw)
 
 
-@pytest.mark.slow  # draws four figures: seconds
-def test_the_benchmarks_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
-    """The figures are placed at fixed margins (`_figures.panel_grid`), not measured: every title, label and tick
-    label of the planes, the bars and the traces lies inside the figure, and no two panels' drawn extents
-    (axes with their texts) overlap, with the default set's longest names."""
+def _texts_inside_and_panels_apart(fig) -> None:
+    """Every visible axes of `fig`, with every text it draws (title, labels, drawn tick labels), lies inside the
+    figure, and no two of them overlap (as savefig draws the figure)."""
+    from matplotlib.transforms import Bbox
+
+    fig.canvas.draw()  # as savefig draws it: the labels' places are set while drawing
+    renderer = fig.canvas.get_renderer()
+    inside = fig.bbox.padded(1.0)
+    boxes = []
+    for ax in fig.axes:
+        if not ax.get_visible() or not ax.axison:
+            continue
+        box = ax.get_tightbbox(renderer)
+        assert inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1), (ax.get_title(), box)
+        boxes.append(box)
+    for k, a in enumerate(boxes):
+        for b in boxes[k + 1:]:
+            overlap = Bbox.intersection(a, b)
+            assert overlap is None or overlap.width < 2 or overlap.height < 2
+
+
+@pytest.mark.slow  # draws five figures: seconds
+def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
+    """The figures are placed at fixed margins (`_figures.panel_grid`), not measured: the planes, the bars and the
+    traces of a short benchmark with the default set's longest names, and a sweep's maps over three parameters,
+    keep their texts inside and their panels apart (`_texts_inside_and_panels_apart`)."""
     import matplotlib
 
     matplotlib.use("Agg")
-    from matplotlib.transforms import Bbox
+    import matplotlib.pyplot as plt
 
     import millvib_env.evaluation.benchmark as bench
+    from millvib_env.evaluation.sweep import _maps, run_sweep
 
     drawn = []
     monkeypatch.setattr(bench, "save_figure", lambda fig, path, dpi=100: drawn.append(fig) or path)
@@ -250,19 +272,7 @@ def test_the_benchmarks_figures_keep_every_text_inside_and_their_panels_apart(mo
     bench._plot_bars(result, tmp_path / "c.png")
     bench._plot_traces(list(result["controllers"]), tmp_path / "d.png", result["plants"][0], scenario=None,
                        task=bench.get_task("rolling"), version="v1")
+    drawn.append(_maps(run_sweep(["pid-paper"], 3, params=["c1", "Ct", "beta_e"], progress=False)))
     for fig in drawn:
-        fig.canvas.draw()  # as savefig draws it: the labels' places are set while drawing
-        renderer = fig.canvas.get_renderer()
-        inside = fig.bbox.padded(1.0)
-        boxes = []
-        for ax in fig.axes:
-            if not ax.get_visible() or not ax.axison:
-                continue
-            box = ax.get_tightbbox(renderer)  # the axes with every text it draws (title, labels, tick labels)
-            assert inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1), (ax.get_title(), box)
-            boxes.append(box)
-        for k, a in enumerate(boxes):
-            for b in boxes[k + 1:]:
-                overlap = Bbox.intersection(a, b)
-                assert overlap is None or overlap.width < 2 or overlap.height < 2
-        matplotlib.pyplot.close(fig)
+        _texts_inside_and_panels_apart(fig)
+        plt.close(fig)

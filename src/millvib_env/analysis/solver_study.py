@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._checks import integer
-from millvib_env._figures import panel_grid
+from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import save_figure
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.studies import PAPER_STUDIES
@@ -200,11 +200,14 @@ def plot_solver_study(rows: list[SolverRun], runs: dict, out: Path) -> list[Path
 
     fig, grid, _ = panel_grid(1, 1, width=8, height=5, colorbar=False, margins=(0.95, 0.2, 0.55, 0.35))
     ax = grid[0, 0]
+    amplitudes = []
     for k, case in enumerate(cases):
         rs = [r for r in rows if r.case == case and "max step" not in r.solver]
         tol = [r.rtol for r in rs]
-        ax.plot(tol, [max(r.tail_ptp_um, 1e-9) for r in rs], "o-", color=f"C{k}", label=case)
-    ax.set(xscale="log", yscale="log", xlabel="relative tolerance (RK45 ladder; 1e-10 = converged LSODA)",
+        amplitudes += [max(r.tail_ptp_um, 1e-9) for r in rs]
+        ax.plot(tol, amplitudes[-len(rs):], "o-", color=f"C{k}", label=case)
+    log_span(ax, "y", amplitudes, pad=2.0)
+    ax.set(xscale="log", xlabel="relative tolerance (RK45 ladder; 1e-10 = converged LSODA)",
            ylabel="tail peak-to-peak displacement (um)", title="Tail amplitude against the solver's tolerance")
     ax.invert_xaxis()
     ax.grid(alpha=0.3, which="both")
