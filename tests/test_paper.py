@@ -83,12 +83,12 @@ def test_the_studies_in_processes_give_the_numbers_of_one_process():
 def test_reproduces_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
     """Reproduce's figures are placed at fixed margins (`_figures.panel_grid`): the studies' time and phase plots,
     their severity bars, the motion and stability maps and the solver study's two figures keep their texts inside
-    and their panels apart (tests/test_protocol.py's check), on short runs and coarse maps."""
+    and their panels apart (`tests._figures`), on short runs and coarse maps."""
     import matplotlib.pyplot as plt
 
     import millvib_env.analysis.paper as paper
     import millvib_env.analysis.solver_study as study
-    from tests.test_protocol import _texts_inside_and_panels_apart
+    from tests._figures import texts_inside_and_panels_apart
 
     drawn = []
     for module in (paper, study):
@@ -100,5 +100,5 @@ def test_reproduces_figures_keep_every_text_inside_and_their_panels_apart(monkey
     study.plot_solver_study(rows, runs, tmp_path)
     assert len(drawn) == 10
     for fig in drawn:
-        _texts_inside_and_panels_apart(fig)
+        texts_inside_and_panels_apart(fig)
         plt.close(fig)

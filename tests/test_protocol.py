@@ -229,32 +229,11 @@ def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
         run_benchmark(["pid-robust"], jobs=0, **kw)
 
 
-def _texts_inside_and_panels_apart(fig) -> None:
-    """Every visible axes of `fig`, with every text it draws (title, labels, drawn tick labels), lies inside the
-    figure, and no two of them overlap (as savefig draws the figure)."""
-    from matplotlib.transforms import Bbox
-
-    fig.canvas.draw()  # as savefig draws it: the labels' places are set while drawing
-    renderer = fig.canvas.get_renderer()
-    inside = fig.bbox.padded(1.0)
-    boxes = []
-    for ax in fig.axes:
-        if not ax.get_visible() or not ax.axison:
-            continue
-        box = ax.get_tightbbox(renderer)
-        assert inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1), (ax.get_title(), box)
-        boxes.append(box)
-    for k, a in enumerate(boxes):
-        for b in boxes[k + 1:]:
-            overlap = Bbox.intersection(a, b)
-            assert overlap is None or overlap.width < 2 or overlap.height < 2
-
-
 @pytest.mark.slow  # draws five figures: seconds
 def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
     """The figures are placed at fixed margins (`_figures.panel_grid`), not measured: the planes, the bars and the
     traces of a short benchmark with the default set's longest names, and a sweep's maps over three parameters,
-    keep their texts inside and their panels apart (`_texts_inside_and_panels_apart`)."""
+    keep their texts inside and their panels apart (`tests._figures`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -262,6 +241,7 @@ def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_
 
     import millvib_env.evaluation.benchmark as bench
     from millvib_env.evaluation.sweep import _maps, run_sweep
+    from tests._figures import texts_inside_and_panels_apart
 
     drawn = []
     monkeypatch.setattr(bench, "save_figure", lambda fig, path, dpi=100: drawn.append(fig) or path)
@@ -274,5 +254,5 @@ def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_
                        task=bench.get_task("rolling"), version="v1")
     drawn.append(_maps(run_sweep(["pid-paper"], 3, params=["c1", "Ct", "beta_e"], progress=False)))
     for fig in drawn:
-        _texts_inside_and_panels_apart(fig)
+        texts_inside_and_panels_apart(fig)
         plt.close(fig)
