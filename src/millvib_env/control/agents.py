@@ -336,8 +336,8 @@ def agent_folder(name: str) -> Path:
         path = Path(name)
     if not path.is_dir() or not agent_seed_folders(path):
         raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
-                         f"{list_agents()} or an agent folder path (a folder with card.json, or seed-<s>/ "
-                         "folders that have one)")
+                         f"{list_agents()}, an agent folder path (a folder with card.json, or seed-<s>/ "
+                         "folders that have one) or an exported agent's FILE.onnx (millvib export)")
     return path
 
 
