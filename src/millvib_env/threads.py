@@ -24,7 +24,7 @@ import os
 
 __all__ = ["MIN_PARALLEL", "use_threads", "numba_threads", "configured_threads", "set_num_threads", "serial_unless_set",
            "THREADS_ENV", "passive_waiting", "one_blas_thread",
-           "one_xla_thread", "XLA_ONE_THREAD"]
+           "one_xla_thread", "XLA_ONE_THREAD", "one_torch_thread"]
 
 THREADS_ENV = "MILLVIB_NUM_THREADS"
 #: batches smaller than this run serially
@@ -50,6 +50,22 @@ def one_xla_thread() -> None:
     learner's networks are small, and two trainings share a 2-core machine. Takes effect only before
     JAX's first computation, so `control.agents.algo_class` calls it before importing sbx."""
     os.environ.setdefault("XLA_FLAGS", XLA_ONE_THREAD)
+
+
+def one_torch_thread() -> None:
+    """Run torch on one thread where a trained agent acts (`control.agents.AgentPolicy`), unless the user set
+    OMP_NUM_THREADS: an agent's network is small, and waking torch's other threads for each of its products costs
+    more than they give. Measured on the rolling student, 40 plants in one process (`docs/performance.md`): 2.2 s
+    against 2.9-3.5 s with torch's default two threads here. How a product is split over threads can round its
+    float32 sums differently: the rolling rows were the same bit for bit, the startup student's on 6 plants moved
+    by 2e-6 relative. Torch's default is the core count, so one thread also makes an agent's actions independent
+    of the machine's cores. Training sets one thread itself (`training.train`)."""
+    if "OMP_NUM_THREADS" in os.environ:
+        return
+    import torch
+
+    if torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
 
 
 class one_blas_thread:

@@ -23,7 +23,7 @@ from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task
-from millvib_env.threads import one_xla_thread
+from millvib_env.threads import one_torch_thread, one_xla_thread
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "resolved_backend", "deterministic_actor",
            "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders", "list_agents", "agent_folder", "agent_seeds"]
@@ -184,6 +184,8 @@ class AgentPolicy(Controller):
         model_path = folder / "model.zip"
         if not model_path.is_file():
             raise ValueError(f"{model_path} is missing: not a complete agent folder")
+        if self.model_format == "sb3":  # torch's (SB3 imported it): a small network acts faster on one thread
+            one_torch_thread()
         try:
             self.model = cls.load(model_path, device="cpu")
         except Exception as err:
