@@ -282,3 +282,39 @@ def test_the_offset_free_estimate_removes_a_steady_model_error_whole():
     for _ in range(400):
         w = offset_free_update(w, r - (0.0 if w is None else w), 0.1)
     np.testing.assert_allclose(w, r, rtol=1e-6)
+
+
+def test_the_direct_qp_call_is_the_wrappers_solve():
+    """`mpc._solve_first_move` calls OSQP's compiled solver without its Python wrapper's bookkeeping; the wrapper's
+    own update and solve (its fallback) give the same first move, bit for bit, and the same status, warm start
+    included, over a few linear terms."""
+    import osqp
+    from scipy import sparse
+
+    from millvib_env.control.mpc import _solve_first_move
+
+    class WrapperOnly:  # an OSQP build whose wrapper has no compiled solver object to reach
+        def __init__(self, solver):
+            self.inner = solver
+
+        def update(self, **kw):
+            self.inner.update(**kw)
+
+        def solve(self, raise_error):
+            return self.inner.solve(raise_error=raise_error)
+
+    rng = np.random.default_rng(5)
+    M = rng.standard_normal((6, 6))
+    H = M @ M.T + 0.1 * np.eye(6)
+    solvers = []
+    for _ in range(2):
+        s = osqp.OSQP()
+        s.setup(P=sparse.csc_matrix(np.triu(H)), q=np.zeros(6), A=sparse.identity(6, format="csc"),
+                l=np.full(6, -1.0), u=np.full(6, 1.0), verbose=False, eps_abs=1e-6, eps_rel=1e-6, polishing=False,
+                warm_starting=True)
+        solvers.append(s)
+    direct, plain = solvers[0], WrapperOnly(solvers[1])
+    for _ in range(5):
+        q = rng.standard_normal(6) * 3.0  # some moves at the bounds
+        a, b = _solve_first_move(direct, q), _solve_first_move(plain, q)
+        assert a == b and a[1] in (1, 2), (a, b)
