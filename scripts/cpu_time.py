@@ -74,6 +74,7 @@ class _CpuGroup:
 
     def __init__(self, path: str, usage_file: str, unit: float, parent_procs: str):
         self.path, self.usage_file, self.unit, self.parent_procs = path, usage_file, unit, parent_procs
+        self.start = 0.0  # the group's usage when it was made, less this script's own
 
     @classmethod
     def make(cls) -> _CpuGroup | None:
