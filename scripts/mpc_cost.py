@@ -30,7 +30,7 @@ def main() -> None:
     first = t.seeds["validation"].start
     seeds = list(range(first, first + args.episodes))
     ref = cpu_of("pid-pf-robust", t.name, seeds)
-    cfg = t.env_config("v1")
+    cfg = t.configs["v1"]
     samples = args.episodes * round(cfg.episode_s / cfg.control_dt_s)
     print(f"pid-pf-robust: {ref:.2f} CPU-s for {args.episodes} episodes ({samples} loop samples)")
     for name in ("mpc-oracle", "mpc-preview"):

@@ -149,3 +149,37 @@ def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_ar
                 assert not [n for n in names if n.startswith(banned)], (path, names)
     for old, new in shims.items():
         assert importlib.import_module(f"millvib_env.training.{old}") is importlib.import_module(f"millvib_env.{new}")
+
+
+#: where a task's name may become a `Task` (docs/architecture.md, "A task name enters once"): the CLI, the API's
+#: entry points (`takes_task`, and the default task), and the two files that name a task (a card, a shared entry)
+TASK_LOOKUPS = {("src/millvib_env/cli.py", "main"), ("src/millvib_env/tasks.py", "default_task"),
+                ("src/millvib_env/tasks.py", "entry"), ("src/millvib_env/control/agents.py", "card_task"),
+                ("src/millvib_env/control/tuned.py", "shared_from")}
+
+
+def test_a_task_name_is_looked_up_only_where_it_enters():
+    """`get_task` is called only at the edges (`TASK_LOOKUPS`: file, innermost function); below them a `Task`."""
+    import ast
+
+    class Calls(ast.NodeVisitor):
+        def __init__(self) -> None:
+            self.where: list[str] = ["<module>"]
+            self.found: set[str] = set()
+
+        def visit_FunctionDef(self, node) -> None:
+            self.where.append(node.name)
+            self.generic_visit(node)
+            self.where.pop()
+
+        def visit_Call(self, node) -> None:
+            if getattr(node.func, "id", getattr(node.func, "attr", None)) == "get_task":
+                self.found.add(self.where[-1])
+            self.generic_visit(node)
+
+    found = set()
+    for path in sorted((ROOT / "src").rglob("*.py")):
+        calls = Calls()
+        calls.visit(ast.parse(path.read_text()))
+        found |= {(path.relative_to(ROOT).as_posix(), fn) for fn in calls.found}
+    assert found <= TASK_LOOKUPS, sorted(found - TASK_LOOKUPS)

@@ -654,12 +654,12 @@ def test_an_env_config_is_immutable_and_still_pickles_and_copies():
 
     from millvib_env.tasks import get_task
 
-    cfg = get_task("rolling").env_config("v1")
+    cfg = get_task("rolling").configs["v1"]
     for change in (lambda: cfg.raw.__setitem__("episode_s", 2.0), lambda: cfg.raw["reward"].update(w_effort=1.0),
                    lambda: cfg.raw["observation"].pop("force"), lambda: cfg.raw["disturbances"].clear()):
         with pytest.raises(TypeError, match="frozen"):
             change()
-    assert get_task("rolling").env_config("v1").raw == cfg.raw
+    assert get_task("rolling").configs["v1"].raw == cfg.raw
     mine = copy.deepcopy(cfg.raw)
     mine["reward"]["w_effort"] = 1.0
     assert type(mine) is dict and mine != cfg.raw

@@ -25,7 +25,7 @@ def _rhs(params, y, c):
 
 def test_the_disturbance_columns_are_the_plants_own_response():
     """E's force column is -1/mt in the acceleration and nothing else: the force balance (8) of plant_rhs."""
-    params = get_task("rolling").env_config("v1").base_params
+    params = get_task("rolling").configs["v1"].base_params
     ss = linearize(params, 0.0, friction="sliding")
     assert ss.E.shape == (len(ss.states), 2)
     iv = ss.states.index("v")
@@ -49,7 +49,7 @@ def test_the_condensed_qp_is_the_model_stepped():
     penalties, the terminal weight) is 2 (H U + G_s s0 + G_e e + G_u u_held)."""
     from millvib_env.control.mpc import U_SCALE_V
 
-    params = get_task("rolling").env_config("v1").base_params
+    params = get_task("rolling").configs["v1"].base_params
     st = MPCSettings(horizon=6, q_x=2.0, q_v=0.5, q_i=0.1, r=0.01, r_d=0.2, residual_filter=0.0)
     m = mpc_model(params, st, 5e-4, 0.0)
     N, ns = 6, len(m.keep) + 1
@@ -86,7 +86,7 @@ def test_mpc_respects_the_amplifier_and_the_loop():
         ctrl = load_controller(name, "rolling", version="v1")
         assert ctrl.env_id == "MillVib-Valve-v1"
         recs = run_episodes(ctrl, [120001, 120002], task="rolling", env_kwargs=SHORT)
-        u_max = get_task("rolling").env_config("v1").base_params.u_max
+        u_max = get_task("rolling").configs["v1"].base_params.u_max
         assert all(r["command_max_abs_v"] <= u_max for r in recs)
         assert not any(r["diverged"] for r in recs)
         assert ctrl.solves > 0 and ctrl.unsolved == 0

@@ -10,6 +10,7 @@ from millvib_env.cli import main as cli_main
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.evaluation.benchmark import public_json, run_benchmark
 from millvib_env.evaluation.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
+from millvib_env.tasks import get_task
 
 #: per controller, what `millvib benchmark --json` promises (README, "Benchmark JSON")
 METRICS = ("cost_mean", "cost_iqm", "cost_cvar20", "cost_worst", "severity_mean", "tracking_rms_um_mean")
@@ -251,7 +252,7 @@ def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_
     bench._plot_paired_plane(result, tmp_path / "b.png")
     bench._plot_bars(result, tmp_path / "c.png")
     bench._plot_traces(list(result["controllers"]), tmp_path / "d.png", result["plants"][0], scenario=None,
-                       task=bench.get_task("rolling"), version="v1")
+                       task=get_task("rolling"), version="v1")
     drawn.append(_maps(run_sweep(["pid-paper"], 3, params=["c1", "Ct", "beta_e"], progress=False)))
     for fig in drawn:
         texts_inside_and_panels_apart(fig)

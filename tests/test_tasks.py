@@ -194,3 +194,33 @@ def test_a_broken_config_file_names_the_file(tmp_path):
         load_env_config(str(bad))
     with pytest.raises(ValueError, match="not found"):
         load_env_config("no-such-task")
+
+
+def test_an_entry_point_looks_the_name_up_once_and_passes_the_task_down(monkeypatch):
+    """`run_benchmark(task="default")`: one lookup of the name (an alias of startup), at the entry; the controllers,
+    the episodes and the report take the `Task` (a second lookup would be of a Task, which `takes_task` passes)."""
+    import millvib_env.tasks as tasks
+    from millvib_env.evaluation.benchmark import run_benchmark
+
+    names = []
+    real = tasks.get_task
+
+    def counting(name):
+        names.append(name)
+        return real(name)
+
+    monkeypatch.setattr(tasks, "get_task", counting)
+    out = run_benchmark(["pid-robust"], task="default", episodes=1, scenarios=False, progress=False,
+                        env_version="v0")
+    assert names == ["default"] and out["task"] == "startup"
+    assert set(out["controllers"]) == {"pid-pf-robust", "pid-robust"}
+
+
+def test_a_task_carries_its_config_in_each_version_and_refuses_another():
+    t = get_task("rolling")
+    from millvib_env.envs.config import cached_env_config
+
+    assert t.configs["v1"] is cached_env_config("rolling", "v1")
+    assert list(t.configs) == ["v0", "v1"] and t.configs["v0"].raw["plant"] == load_env_config("rolling").raw["plant"]
+    with pytest.raises(ValueError, match="version = 'v9' is invalid"):
+        t.configs["v9"]

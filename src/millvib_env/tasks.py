@@ -1,22 +1,28 @@
 """The benchmark's tasks (startup, rolling, change) and their disjoint seed ranges (configs/tasks.yaml).
 
-A task is an environment config (`Task.env_config`) plus four seed ranges: training, tuning, validation and held-out.
-Everything that draws plants for a purpose (training, PID tuning, model cards, the benchmark)
-takes its seeds from here, so no held-out plant is ever trained or tuned on.
+A task is an environment config (`Task.configs`, one per environment version) plus four seed ranges: training,
+tuning, validation and held-out. Everything that draws plants for a purpose (training, PID tuning, model cards, the
+benchmark) takes its seeds from here, so no held-out plant is ever trained or tuned on.
+
+A task name becomes a `Task` once, where it enters: the CLI, an API entry point (`takes_task`), a file that names
+a task. Below them the `Task` is passed down, and what it carries (its configs, seeds) is read from it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+import inspect
+from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Callable, Mapping, ParamSpec, TypeVar
 
 from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
-from millvib_env.envs.actions import GainMap
-from millvib_env.envs.config import CONFIG_ALIASES, EnvConfig, cached_env_config
+from millvib_env.envs.config import CONFIG_ALIASES, EnvConfig, VersionedConfig
 
-__all__ = ["Task", "get_task", "list_tasks", "all_tasks", "SEED_PURPOSES", "TASK_ALIASES", "MAX_TRAINING_SEED"]
+__all__ = ["Task", "get_task", "takes_task", "default_task", "list_tasks", "all_tasks", "SEED_PURPOSES",
+           "TASK_ALIASES", "MAX_TRAINING_SEED"]
 
 SEED_PURPOSES = ("training", "tuning", "validation", "heldout")
 #: a task's aliases are its config's (``default`` is ``startup``): one table, `envs.config.CONFIG_ALIASES`
@@ -33,15 +39,12 @@ class Task:
     config: str
     description: str
     seeds: dict  # purpose -> range (inclusive bounds in the file, a Python range here)
+    #: the task's environment config per environment version (``configs["v1"]``; v0: the paper's analog loop, v1:
+    #: the loop as commissioned), each read and validated at its first use and shared: it is frozen
+    configs: Mapping[str, EnvConfig] = field(init=False, compare=False, repr=False)
 
-    def env_config(self, version: str = "v0") -> EnvConfig:
-        """The task's environment config in environment version `version` (v0: the paper's analog loop; v1: the
-        loop as commissioned), read and validated once per process and shared: it is frozen."""
-        return cached_env_config(self.config, version)
-
-    def gain_map(self, version: str = "v0") -> GainMap:
-        """The gain map of the task's gain-schedule action in environment version `version`."""
-        return GainMap.from_config(self.env_config(version))
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "configs", VersionedConfig(self.config))
 
     def train_env_seed(self, seed: int) -> int:
         """First environment seed of training seed `seed` (environment i uses this + i)."""
@@ -140,3 +143,40 @@ def get_task(name: str | Task) -> Task:
     if name not in tasks:
         raise ValueError(f"task {name!r} unknown; available: {list(tasks)}")
     return tasks[name]
+
+
+def default_task() -> Task:
+    """The task of a call that names none: startup (the paper's 1 mm start)."""
+    return get_task("startup")
+
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def takes_task(*params: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
+    """Marks an entry point of the API whose arguments `params` (default ``task``) may name a task: each name
+    becomes its `Task` here, before the body runs (`get_task`; a Task passes as it is, and None where it is the
+    parameter's default), so the body and everything it calls take a Task and never look it up again."""
+    names = params or ("task",)
+
+    def wrap(fn: Callable[P, R]) -> Callable[P, R]:
+        sig = inspect.signature(fn)
+        missing = [n for n in names if n not in sig.parameters]
+        if missing:
+            raise TypeError(f"{fn.__qualname__} has no parameter {missing[0]!r} to take a task")
+        optional = {n for n in names if sig.parameters[n].default is None}
+
+        @functools.wraps(fn)
+        def entry(*args: P.args, **kwargs: P.kwargs) -> R:
+            bound = sig.bind(*args, **kwargs)
+            bound.apply_defaults()
+            for n in names:
+                value = bound.arguments[n]
+                if not isinstance(value, Task) and not (value is None and n in optional):
+                    bound.arguments[n] = get_task(value)
+            return fn(*bound.args, **bound.kwargs)
+
+        return entry
+
+    return wrap

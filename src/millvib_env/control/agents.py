@@ -22,7 +22,7 @@ from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import STATS_FILE, load_obs_stats
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_version
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, get_task, takes_task
 from millvib_env.threads import one_torch_thread, one_xla_thread
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "resolved_backend", "deterministic_actor",
@@ -306,10 +306,12 @@ def _agent_version(folder: Path) -> str:
     return env_id.rsplit("-", 1)[-1]
 
 
+@takes_task()
 def list_agents(task: str | Task | None = None, version: str | None = None) -> list[str]:
     """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
     optionally only those trained on `task` and those trained in environment version `version`."""
-    wanted = None if task is None else get_task(task).name  # the name enters here, once
+    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
+    wanted = None if task is None else task.name
     root = agents_dir()
     if not root.is_dir():
         return []

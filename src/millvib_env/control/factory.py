@@ -17,11 +17,12 @@ from millvib_env.control.tuned import control_config_path, control_entry, load_c
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import ENV_VERSIONS, EnvConfig
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, default_task, takes_task
 
 __all__ = ["load_controller", "load_control_config", "control_entry", "control_config_path", "oracle_table"]
 
 
+@takes_task()
 def load_controller(name: str, task: str | Task | None = None, config: EnvConfig | None = None,
                     seed: int | None = None, version: str = "v0") -> Controller:
     """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>),
@@ -36,21 +37,23 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
     if config is not None and not isinstance(config, EnvConfig):
         raise ValueError(f"config = {config!r:.60} is invalid: None or an EnvConfig (envs.config.load_env_config)")
-    t = get_task(task if task is not None else "startup")  # the task, once (an agent's default is its own)
+    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
+    asked = task  # None: an agent's own task, startup for a baseline
     if name not in REGISTRY:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
         if is_onnx_name(name):
-            return _exported(name, t if task is not None else None, seed)
+            return _exported(name, asked, seed)
         seeds = agent_seed_folders(agent_folder(name))
         if seed is None:
             seed = next(iter(seeds))
         if seed not in seeds:
             raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
-        return _on_task(AgentPolicy(seeds[seed]), name, t if task is not None else None)
-    gain_map = GainMap.from_config(config) if config is not None else t.gain_map()
+        return _on_task(AgentPolicy(seeds[seed]), name, asked)
+    t = asked if asked is not None else default_task()
+    gain_map = GainMap.from_config(config if config is not None else t.configs["v0"])
     entry = REGISTRY[name]
-    ctrl = entry.build(name, t, version, config or t.env_config(version), gain_map)
+    ctrl = entry.build(name, t, version, config or t.configs[version], gain_map)
     ctrl.task = t
     ctrl.env_id = env_id_for(entry.env_mode, version)
     return ctrl

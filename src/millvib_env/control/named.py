@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 from millvib_env.control.registry import REGISTRY
 from millvib_env.envs.config import CONFIG_ALIASES
-from millvib_env.tasks import Task, all_tasks, get_task
+from millvib_env.tasks import Task, all_tasks, takes_task
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains",
            "resolve_named_gains_for"]
@@ -76,6 +76,7 @@ def has_named_gains(env_kwargs: Mapping) -> bool:
     return False
 
 
+@takes_task()
 def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, version: str | None = None) -> dict:
     """`env_kwargs` (an env's keyword arguments, a card's or a hyperparameter file's ``env_kwargs``) with every
     named gain set replaced by that baseline's gains: in ``actions`` and in a mapping ``config``'s ``actions``.
@@ -83,7 +84,8 @@ def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, ver
     ``env_kwargs["env_version"]`` (else v0). Returns a new dict; `env_kwargs` is left as it was."""
     if not has_named_gains(env_kwargs):
         return dict(env_kwargs)
-    t = get_task(task) if task is not None else task_of_config(env_kwargs.get("config"))
+    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
+    t = task or task_of_config(env_kwargs.get("config"))
     return resolve_named_gains_for(env_kwargs, t, version)
 
 

@@ -23,7 +23,7 @@ from millvib_env.loop.settings import LoopSettings
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
 __all__ = ["EnvConfig", "load_env_config", "list_env_configs", "Distribution", "CONFIG_ALIASES", "ENV_VERSIONS",
-           "DEFAULT_VERSION"]
+           "DEFAULT_VERSION", "VersionedConfig", "cached_env_config"]
 
 #: names kept for earlier releases: `default` is the `startup` task's episode
 CONFIG_ALIASES = {"default": "startup"}
@@ -687,7 +687,7 @@ def cached_env_config(name: str, version: str = "v0") -> EnvConfig:
     """The env config `name` in environment version `version` as its file has it (no overrides), read and
     validated once per process and configs folder: every caller that needs a task's plant, periods or gain
     bounds shares it (an EnvConfig is frozen; its sections are read, never written). A task's own:
-    `tasks.Task.env_config`."""
+    `tasks.Task.configs`."""
     return _cached_env_config(str(config_dir()), name, version)
 
 
@@ -695,3 +695,30 @@ def cached_env_config(name: str, version: str = "v0") -> EnvConfig:
 def _cached_env_config(root: str, name: str, version: str) -> EnvConfig:
     return load_env_config(name, version=version)
 
+
+class VersionedConfig(Mapping[str, EnvConfig]):
+    """The env config `name` in each environment version (`ENV_VERSIONS`): ``configs["v1"]`` is
+    `cached_env_config(name, "v1")`, read and validated at its first use and shared. A task carries one
+    (`tasks.Task.configs`), so whatever holds the task holds its configs without looking the task up again."""
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __getitem__(self, version: str) -> EnvConfig:
+        if version not in ENV_VERSIONS:
+            raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
+        return cached_env_config(self.name, version)
+
+    def __iter__(self):
+        return iter(ENV_VERSIONS)
+
+    def __len__(self) -> int:
+        return len(ENV_VERSIONS)
+
+    def __repr__(self) -> str:
+        return f"VersionedConfig({self.name!r})"
+
+    def __reduce__(self):
+        return VersionedConfig, (self.name,)

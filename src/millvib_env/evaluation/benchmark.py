@@ -39,7 +39,7 @@ from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.plant.model import rated_flow
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.evaluation.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
@@ -270,7 +270,8 @@ def _scenario_records(ctrl, plant: int, task: Task) -> dict[str, dict]:
     return out
 
 
-def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str = "startup",
+@takes_task()
+def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str | Task = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
                   all_seeds: bool = False, reference: str | None = None, jobs: int = 1) -> dict:
@@ -294,7 +295,8 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
         raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
     env_id = env_id_for("gain", env_version)
     jobs = integer("jobs", jobs, lo=1, hi=1024)
-    t = get_task(task)
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    t = task
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     plants = t.heldout_plants(episodes, seed)
@@ -310,12 +312,11 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
-        load_controller(reference, t, version=env_version)  # an unknown name fails here, in one line
-        names = [reference] + names
+        names = [reference] + names  # loaded first: an unknown name fails at once, in one line
     units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
-    cfg = t.env_config(env_version)
+    cfg = t.configs[env_version]
     result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
                     "env_id": env_id, "env_version": env_version, "loop": loop_description(cfg),
                     "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
@@ -656,7 +657,7 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
     fig, grid, _ = panel_grid(4, 1, width=10, height=2.5, colorbar=False, margins=(0.85, 0.2, 0.55, 0.35),
                               sharex=True)
     axes = grid[:, 0]
-    u_max = task.env_config(version).base_params.u_max
+    u_max = task.configs[version].base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
         tr = trace_episode(load_controller(name, task, version=version), scenario=scenario, seed=seed, task=task)

@@ -18,7 +18,7 @@ from millvib_env.control.base import Controller
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
 from millvib_env.plant.model import A_ACC, A_U, IV, IX
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, takes_task
 
 __all__ = ["run_episodes", "episode_cost", "scored_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS",
            "CSV_FIELDS", "ACTUATOR_FIELDS", "DIVERGED_COST"]
@@ -92,10 +92,12 @@ def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | No
         trk / real("scales['tracking_um']", s["tracking_um"], lo=0.0, lo_open=True)
 
 
+@takes_task()
 def env_kwargs_for(controller: Controller, task: str | Task | None = None, env_kwargs: dict | None = None) -> dict:
     """The environment keyword arguments a controller runs with on a task (a name or a `Task`; resolved here, where
     `run_episodes` and `trace_episode` take it) (`Controller.env_kwargs_for`)."""
-    return controller.env_kwargs_for(None if task is None else get_task(task), env_kwargs)
+    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
+    return controller.env_kwargs_for(task, env_kwargs)
 
 
 def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,

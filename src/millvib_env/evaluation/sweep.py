@@ -25,7 +25,7 @@ from millvib_env.control.factory import load_controller
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_id_for
 from millvib_env.params import studied_range
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.benchmark import episode_records, format_table, summarize
 from millvib_env.evaluation.evaluate import COST_SCALES
 
@@ -40,7 +40,7 @@ CHUNK = 64
 
 
 def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
-    cfg = task.env_config(version)
+    cfg = task.configs[version]
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:
         if name not in RANGES:
@@ -50,13 +50,15 @@ def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
     return out
 
 
-def run_sweep(controllers: Sequence[str], plants: int, *, task: str = "startup", params: Sequence[str] = ("c1", "Ct"),
-              seed: int | None = None, ray: str | None = None, processes: int = 1, progress: bool = True,
-              env_version: str = "v1") -> dict:
+@takes_task()
+def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "startup",
+              params: Sequence[str] = ("c1", "Ct"), seed: int | None = None, ray: str | None = None,
+              processes: int = 1, progress: bool = True, env_version: str = "v1") -> dict:
     """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}. Baselines run
     in environment version `env_version` (agents in their own)."""
 
-    t = get_task(task)
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    t = task
     plants = integer("--plants", plants, lo=1, hi=len(t.seeds["heldout"]) - SEED_OFFSET)
     controllers = strings("controllers", controllers, "controller names")
     params = list(dict.fromkeys(strings("params", params, "parameter names")))

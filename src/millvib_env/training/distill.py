@@ -40,7 +40,7 @@ from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import ObsStats
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.loop.kernel import K_UCTRL
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, takes_task
 from millvib_env.training.train import validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
@@ -131,7 +131,8 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> 
     return loss_value
 
 
-def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
+@takes_task()
+def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
             iterations: int = 4,
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
@@ -142,7 +143,8 @@ def distill(task: str = "rolling", *, teacher: str = "mpc-preview", baseline: st
     import torch
     from stable_baselines3 import PPO
 
-    t = get_task(task)
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    t = task
     seed = integer("seed", seed, lo=0, hi=49)
     iterations = integer("iterations", iterations, lo=1, hi=20)
     episodes = integer("episodes", episodes, lo=1, hi=100)

@@ -35,7 +35,7 @@ from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
-from millvib_env.tasks import get_task
+from millvib_env.tasks import Task, takes_task
 from millvib_env.threads import serial_unless_set
 from millvib_env.evaluation.benchmark import summarize
 from millvib_env.evaluation.evaluate import run_episodes
@@ -249,7 +249,8 @@ def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs:
     return model, venv
 
 
-def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "startup", seed: int = 0,
+@takes_task()
+def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Task = "startup", seed: int = 0,
           n_timesteps: int | None = None,
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
@@ -276,7 +277,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str = "s
     algo = algo.lower()
     backend = resolved_backend(algo, backend)
     cls = algo_class(algo, backend)
-    the_task = get_task(task)
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    the_task = task
     _check_id_runs_task(env_id, the_task)
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
@@ -420,8 +422,9 @@ def validation_result(folder: str | Path, card: dict | None = None) -> dict:
     return {"seeds": f"{seeds[0]}-{seeds[-1]}", **{k: summary[k] for k in keep}}
 
 
-def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str | None = None,
-                cpus_per_seed: float = 1.0, **kwargs) -> list[dict]:
+@takes_task()
+def train_seeds(seeds, *, task: str | Task = "startup", jobs: int = 2, save_dir: str | None = None,
+                ray: str | None = None, cpus_per_seed: float = 1.0, **kwargs) -> list[dict]:
     """Train several seeds: in `jobs` local worker processes (`distributed.run_jobs`: forks of a fork server
     that imported torch and SB3 once; no thread pool or torch state of this process is inherited), or each as a
     Ray task asking for `cpus_per_seed` CPUs (`ray`: "" for a local cluster, or an address). Seed s is saved to
@@ -430,10 +433,11 @@ def train_seeds(seeds, *, jobs: int = 2, save_dir: str | None = None, ray: str |
     seeds = list(dict.fromkeys(seeds))
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"--jobs {jobs!r} is invalid: a whole number >= 1")
-    task = get_task(kwargs.get("task", "startup"))
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    the_task = task
     for s in seeds:
-        task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
-    job_args = [{**kwargs, "task": task, "seed": s, "progress": False,
+        the_task.train_env_seed(s)  # refuses a seed outside the training range before anything runs
+    job_args = [{**kwargs, "task": the_task, "seed": s, "progress": False,
                  "save_dir": None if save_dir is None else str(Path(save_dir) / f"seed-{s}")} for s in seeds]
     return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed,
                     preload=("torch", "torch._dynamo", "stable_baselines3"))

@@ -42,9 +42,9 @@ from millvib_env.control.factory import control_config_path, control_entry, orac
 from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.distributed import run_jobs
-from millvib_env.envs.config import cached_env_config, load_env_config
+from millvib_env.envs.config import cached_env_config
 from millvib_env.params import MillParams
-from millvib_env.tasks import Task, get_task
+from millvib_env.tasks import Task, takes_task
 from millvib_env.tuning import search as tuning  # the searches, called through the module (a test stands them in)
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
@@ -78,7 +78,7 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
 
     grid = np.stack(np.meshgrid([5.5, 6.0, 6.5], [7.0, 8.0, 9.0], [np.log10(300.0)], [-5.0, -4.5, -4.0, -3.5],
                                 indexing="ij"), axis=-1).reshape(-1, 4)
-    cfg = load_env_config(task.config, version=version)
+    cfg = task.configs[version]
     centre = {d.name: math.sqrt(d.low * d.high) for d in cfg.randomize if d.name in ("c1", "Ct")}
     starts = [grid]
     try:
@@ -258,6 +258,7 @@ ENTRIES = tuple(TUNERS)
 SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 
 
+@takes_task("task", "from_task")
 def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str | Task | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
               progress: bool = True, version: str = "v0", jobs: int = 1) -> dict[str, Any]:
@@ -266,8 +267,9 @@ def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str
     run or else from `shipped` (the task's control config). `jobs`: worker processes for the oracle tables'
     grid plants (`distributed.run_jobs`; the same tables for any number)."""
     jobs = integer("jobs", jobs, lo=1, hi=1024)
-    t = get_task(task)
-    shared_from = None if from_task is None else get_task(from_task).name
+    assert isinstance(task, Task) and (from_task is None or isinstance(from_task, Task))  # by @takes_task
+    t = task
+    shared_from = None if from_task is None else from_task.name
     r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}), jobs=jobs)
     todo = list(dict.fromkeys(only or ENTRIES))
     if optuna:
@@ -301,7 +303,7 @@ def _tuned_table(r: _Run, name: str, seeds: list[int], how: str, base: list[floa
 
 
 def _area(t: Task) -> float:
-    return float(t.env_config().base_params.Ap)
+    return float(t.configs["v0"].base_params.Ap)
 
 
 def _oracle_grid(t: Task, n: int, version: str = "v0"):

@@ -167,7 +167,7 @@ class TuneResult:
 def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=GRID,
          refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
-    gain_map = task.gain_map()
+    gain_map = GainMap.from_config(task.configs["v0"])
     lo, hi = gain_map.log_lo, gain_map.log_hi
     mesh = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 3)
     return _refine(mesh, lo, hi, seeds, task=task, params=params, refine_iters=refine_iters, step=0.15,
@@ -266,7 +266,7 @@ def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = A
     `table`, default the task's shipped pid-oracle table)."""
     from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 
-    cfg = task.env_config(version)
+    cfg = task.configs[version]
     table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
     costs: dict[float, float] = {}
     for tau in taus:
@@ -306,7 +306,7 @@ def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: s
     study name share the study. Returns the study's best gains so far."""
     import optuna
 
-    gain_map = task.gain_map()
+    gain_map = GainMap.from_config(task.configs["v0"])
     lo, hi = gain_map.log_lo, gain_map.log_hi
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = optuna.create_study(study_name=study_name, storage=optuna_storage(storage), direction="minimize",
