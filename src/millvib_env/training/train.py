@@ -92,10 +92,11 @@ def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **k
     return FixedPlantsEval(eval_env, **kwargs)
 
 
-def _agent_env_kwargs(raw, task) -> dict:
-    """The hyperparameters' env_kwargs, refused now (not when the finished agent is loaded) where a card could
-    not carry them: not a mapping, a key that changes the episode (`control.agents.AGENT_ENV_KEYS`), another
-    task's config."""
+def _agent_env_kwargs(raw, task: Task, version: str) -> dict:
+    """The env keyword arguments an agent trains with: the hyperparameters' env_kwargs with their named gain sets
+    resolved on `task` in env version `version` and the task's config. Refused now (not when the finished agent is
+    loaded) where a card could not carry them: not a mapping, a key that changes the episode
+    (`control.agents.AGENT_ENV_KEYS`), another task's config."""
 
     raw = raw or {}
     if not isinstance(raw, dict):
@@ -107,7 +108,10 @@ def _agent_env_kwargs(raw, task) -> dict:
     if "config" in raw and raw["config"] != task.config:
         raise ValueError(f"env_kwargs config = {raw['config']!r:.60} in the hyperparameters is not task "
                          f"{task.name!r}'s ({task.config!r}): choose the task with --task")
-    return dict(raw)
+    out = resolve_named_gains_for(raw, task, version)
+    if task.name != "startup":
+        out["config"] = task.config
+    return out
 
 
 def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
@@ -287,10 +291,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     hp.pop("n_timesteps", None)
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
-    env_kwargs = resolve_named_gains_for(_agent_env_kwargs(hp.pop("env_kwargs", None), the_task), the_task,
-                                     env_version(env_id))
-    if the_task.name != "startup":
-        env_kwargs["config"] = the_task.config
+    env_kwargs = _agent_env_kwargs(hp.pop("env_kwargs", None), the_task, env_version(env_id))
     torch.set_num_threads(1)  # small networks: threads cost more than they give
 
     run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
