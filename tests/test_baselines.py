@@ -11,6 +11,7 @@ from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
 from millvib_env.params import PIDGains
 from millvib_env.tasks import get_task, list_tasks
 from millvib_env.evaluation.evaluate import run_episodes
+from tests._source import parsed
 
 
 @pytest.mark.parametrize("friction", ["stick", "sliding"])
@@ -177,7 +178,7 @@ def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
     from millvib_env.envs.batch import EpisodeBatch
 
     for path in Path(envs_pkg.__file__).parent.glob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in ast.walk(parsed(path)):
             names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             assert not [n for n in names if n.startswith(("millvib_env.control", "millvib_env.training",

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from tests._source import parsed
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -111,7 +113,7 @@ def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_p
         rel = path.relative_to(ROOT).as_posix()
         if rel in LAZY_FILES:
             continue
-        tree = ast.parse(path.read_text())
+        tree = parsed(path)
         for fn in ast.walk(tree):
             if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 continue
@@ -143,7 +145,7 @@ def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_ar
         for path in (root / folder).glob("*.py"):
             if folder == "training" and path.stem in shims:
                 continue
-            for node in ast.walk(ast.parse(path.read_text())):
+            for node in ast.walk(parsed(path)):
                 names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                     [node.module or ""] if isinstance(node, ast.ImportFrom) else []
                 assert not [n for n in names if n.startswith(banned)], (path, names)
@@ -180,6 +182,6 @@ def test_a_task_name_is_looked_up_only_where_it_enters():
     found = set()
     for path in sorted((ROOT / "src").rglob("*.py")):
         calls = Calls()
-        calls.visit(ast.parse(path.read_text()))
+        calls.visit(parsed(path))
         found |= {(path.relative_to(ROOT).as_posix(), fn) for fn in calls.found}
     assert found <= TASK_LOOKUPS, sorted(found - TASK_LOOKUPS)

@@ -5,6 +5,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+from tests._source import parsed
+
 ROOT = Path(__file__).resolve().parents[1]
 #: import name -> distribution name, where they differ
 DIST = {"yaml": "pyyaml", "sb3_contrib": "sb3-contrib", "stable_baselines3": "stable-baselines3",
@@ -18,7 +20,7 @@ def _norm(name: str) -> str:
 def _imports(folder: Path) -> set[str]:
     found = set()
     for path in folder.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in ast.walk(parsed(path)):
             if isinstance(node, ast.Import):
                 found |= {a.name.split(".")[0] for a in node.names}
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
