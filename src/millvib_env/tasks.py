@@ -19,6 +19,7 @@ from typing import Callable, Mapping, ParamSpec, TypeVar
 from millvib_env._checks import shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import CONFIG_ALIASES, EnvConfig, VersionedConfig
 
 __all__ = ["Task", "get_task", "takes_task", "default_task", "list_tasks", "all_tasks", "SEED_PURPOSES",
@@ -45,6 +46,15 @@ class Task:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "configs", VersionedConfig(self.config))
+
+    def env_config(self, version: str = "v0") -> EnvConfig:
+        """``configs[version]``, kept for one release for earlier scripts."""
+        return self.configs[version]
+
+    def gain_map(self, version: str = "v0") -> GainMap:
+        """The gain map of the task's gain-schedule action in `version`, kept for one release for earlier scripts:
+        ``GainMap.from_config(task.configs[version])``."""
+        return GainMap.from_config(self.configs[version])
 
     def train_env_seed(self, seed: int) -> int:
         """First environment seed of training seed `seed` (environment i uses this + i)."""
