@@ -224,4 +224,5 @@ def test_a_task_carries_its_config_in_each_version_and_refuses_another():
     assert list(t.configs) == ["v0", "v1"] and t.configs["v0"].raw["plant"] == load_env_config("rolling").raw["plant"]
     with pytest.raises(ValueError, match="version = 'v9' is invalid"):
         t.configs["v9"]
+    assert "v1" in t.configs and "v9" not in t.configs and t.configs.get("v9") is None
     assert t.env_config("v1") is t.configs["v1"]  # the earlier spelling, kept for one release

@@ -711,6 +711,12 @@ class VersionedConfig(Mapping[str, EnvConfig]):
             raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
         return cached_env_config(self.name, version)
 
+    def __contains__(self, version: object) -> bool:
+        return version in ENV_VERSIONS
+
+    def get(self, version: str, default: Any = None) -> Any:
+        return self[version] if version in ENV_VERSIONS else default
+
     def __iter__(self):
         return iter(ENV_VERSIONS)
 
