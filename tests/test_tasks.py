@@ -226,3 +226,14 @@ def test_a_task_carries_its_config_in_each_version_and_refuses_another():
         t.configs["v9"]
     assert "v1" in t.configs and "v9" not in t.configs and t.configs.get("v9") is None
     assert t.env_config("v1") is t.configs["v1"]  # the earlier spelling, kept for one release
+
+
+def test_an_entry_point_refuses_a_call_that_does_not_fit_it_by_its_name():
+    from millvib_env.control.factory import load_controller
+
+    with pytest.raises(TypeError, match=r"load_controller\(\) got an unexpected keyword argument 'tsk'"):
+        load_controller("pid-robust", tsk="rolling")
+    with pytest.raises(ValueError, match="task = None is invalid"):
+        from millvib_env.tuning.baselines import tune_task
+
+        tune_task(None)

@@ -179,7 +179,10 @@ def takes_task(*params: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
 
         @functools.wraps(fn)
         def entry(*args: P.args, **kwargs: P.kwargs) -> R:
-            bound = sig.bind(*args, **kwargs)
+            try:
+                bound = sig.bind(*args, **kwargs)
+            except TypeError as err:  # a call that does not fit the signature, named as Python names it
+                raise TypeError(f"{fn.__qualname__}() {err}") from None
             bound.apply_defaults()
             for n in names:
                 value = bound.arguments[n]
