@@ -37,20 +37,19 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
         raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
     if config is not None and not isinstance(config, EnvConfig):
         raise ValueError(f"config = {config!r:.60} is invalid: None or an EnvConfig (envs.config.load_env_config)")
-    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
-    asked = task  # None: an agent's own task, startup for a baseline
+    assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task; None: an agent's own task
     if name not in REGISTRY:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
         if is_onnx_name(name):
-            return _exported(name, asked, seed)
+            return _exported(name, task, seed)
         seeds = agent_seed_folders(agent_folder(name))
         if seed is None:
             seed = next(iter(seeds))
         if seed not in seeds:
             raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
-        return _on_task(AgentPolicy(seeds[seed]), name, asked)
-    t = asked if asked is not None else default_task()
+        return _on_task(AgentPolicy(seeds[seed]), name, task)
+    t = task if task is not None else default_task()  # a baseline named without a task: startup
     gain_map = GainMap.from_config(config if config is not None else t.configs["v0"])
     entry = REGISTRY[name]
     ctrl = entry.build(name, t, version, config or t.configs[version], gain_map)
