@@ -299,7 +299,6 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     t = task
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
-    plants = t.heldout_plants(episodes, seed)
     names, own = _own_controllers(controllers, env_version) if controllers is not None else \
         (baseline_names(env_version) + list_agents(t.name, env_version), {})
     if own and ray is not None:
@@ -314,6 +313,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if reference not in names:
         names = [reference] + names  # loaded first: an unknown name fails at once, in one line
     units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
+    plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     cfg = t.configs[env_version]
