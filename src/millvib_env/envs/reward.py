@@ -29,7 +29,12 @@ from millvib_env._checks import callable_or_none, shown
 from millvib_env.envs.config import RewardSettings
 from millvib_env.severity import severity_band
 
-__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
+__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST", "ENV_IMPORTS"]
+
+#: what an environment imports at its first construction, not at the package's import (the band-pass filter's
+#: design, `Reward`; about 0.5 CPU-s): a pool whose workers build environments has its fork server import it once
+#: (`distributed.run_jobs`'s `preload`), so that each worker does not
+ENV_IMPORTS = ("scipy.signal",)
 
 
 @dataclass(frozen=True)
