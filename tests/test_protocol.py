@@ -163,17 +163,24 @@ def test_all_seeds_pools_every_training_seed_of_an_agent(tmp_path):
 
 
 @pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
-def test_a_benchmark_of_baselines_never_imports_torch(tmp_path):
+def test_a_benchmark_of_baselines_never_imports_torch_nor_scipy_signal(tmp_path):
+    """Nor scipy.signal, once its filters are designed on this machine (`envs.filter_design`): here, by an episode
+    of each controller in this process, which shares the child's cache folder."""
     import subprocess
     import sys
 
+    from millvib_env.control import load_controller
+    from millvib_env.evaluation.evaluate import run_episodes
+
+    for name in ("pid-robust", "pid-adaptive"):
+        run_episodes(load_controller(name, "rolling"), [20000], env_kwargs={"episode_s": 0.1})
     code = ("import sys; from millvib_env.cli import main; "
             "rc = main(['benchmark', '--task', 'rolling', '--controllers', 'pid-robust', 'pid-adaptive', '--episodes', "
             "'2', '--quiet', '--json', sys.argv[1]]); "
-            "print(rc, 'torch' in sys.modules, 'stable_baselines3' in sys.modules)")
+            "print(rc, 'torch' in sys.modules, 'stable_baselines3' in sys.modules, 'scipy.signal' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code, str(tmp_path / "b.json")], capture_output=True, text=True,
                          timeout=300)
-    assert run.stdout.strip().splitlines()[-1] == "0 False False", run.stdout + run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "0 False False False", run.stdout + run.stderr
 
 
 def test_episode_records_and_the_csv_columns_have_one_home():

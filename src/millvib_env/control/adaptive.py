@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy import signal as ssig
 
 from millvib_env._checks import as_float, shown
 from millvib_env.control.base import GainTable, PerEnvGains
 from millvib_env.envs.actions import GainMap
+from millvib_env.envs.filter_design import butter_sos
 from millvib_env.envs.period import pairwise_sum, sosfilt_into
 from millvib_env.params import MillParams
 from millvib_env.plant.model import A_QL, C_UEXT, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
@@ -164,8 +164,7 @@ class PlantEstimator:
     def __init__(self, params: MillParams, settings: EstimatorSettings, sample_rate_hz: float = 10_000.0):
         self.params, self.settings, self.fs = params, settings, sample_rate_hz
         self.p_model = pack(params.replace(c1=0.0))  # valve flow gain Cd W sqrt(2/rho) Ksv Kp1 (data sheet)
-        self.sos = np.ascontiguousarray(ssig.butter(2, settings.highpass_hz, btype="highpass", fs=sample_rate_hz,
-                                                    output="sos"))
+        self.sos = butter_sos(2, settings.highpass_hz, "highpass", sample_rate_hz)
         self._consts = np.array([params.Ap, params.L1, params.beta_e, params.pb, params.mt, params.FL, self.V_SCALE])
         self.n = 0
         self.reset_all(0)

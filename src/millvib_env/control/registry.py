@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 from millvib_env.control.base import Controller
 from millvib_env.control.lqr import LQRWeights
 from millvib_env.control.mpc import MPCPolicy, MPCSettings
@@ -95,8 +96,6 @@ def lqr_oracle(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: Ga
 
 
 def adaptive(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
-    from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
-
     entry = control_entry(task, name, version)
     return AdaptivePolicy(oracle_table(task, version=version), gain_map, EstimatorSettings(**entry["estimator"]),
                           cfg.base_params, sample_rate_hz=cfg.sample_rate_hz)

@@ -27,14 +27,10 @@ import numpy as np
 
 from millvib_env._checks import callable_or_none, shown
 from millvib_env.envs.config import RewardSettings
+from millvib_env.envs.filter_design import butter_sos
 from millvib_env.severity import severity_band
 
-__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST", "ENV_IMPORTS"]
-
-#: what an environment imports at its first construction, not at the package's import (the band-pass filter's
-#: design, `Reward`; about 0.5 CPU-s): a pool whose workers build environments has its fork server import it once
-#: (`distributed.run_jobs`'s `preload`), so that each worker does not
-ENV_IMPORTS = ("scipy.signal",)
+__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
 
 
 @dataclass(frozen=True)
@@ -83,10 +79,7 @@ class Reward:
         self.penalty = spec.terminal_penalty
         self.penalty_per_step = float(spec.terminal_per_step)
         self.ema_gain = 1.0 - math.exp(-period_s / spec.vib_time_constant_s)
-        from scipy import signal as ssig  # here, not at import: 1-2 s that a refused config should not wait for
-
-        self.sos = np.ascontiguousarray(ssig.butter(2, severity_band(), btype="bandpass", fs=sample_rate_hz,
-                                                    output="sos"))
+        self.sos = butter_sos(2, severity_band(), "bandpass", sample_rate_hz)
         #: the filter's section states, per environment (n, sections, 2)
         self.zi = np.zeros((n, self.sos.shape[0], 2))
         self.vib_ema = np.zeros(n)

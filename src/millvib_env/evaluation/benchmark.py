@@ -35,7 +35,6 @@ from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.distributed import run_jobs
-from millvib_env.envs.reward import ENV_IMPORTS
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
@@ -253,7 +252,7 @@ def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, e
         agents = any(c.card is not None for c in loaded.values())
         parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"benchmark {task.name} ({'ray' if ray is not None else f'{processes} processes'})",
-                         preload=ENV_IMPORTS + (("torch", "stable_baselines3") if agents else ()))
+                         preload=("torch", "stable_baselines3") if agents else ())
         for job, part in zip(jobs, parts):
             records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
     else:

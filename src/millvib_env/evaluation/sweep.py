@@ -24,7 +24,6 @@ from millvib_env._paths import atomic_folder, check_result_folder, save_figure, 
 from millvib_env.control.factory import load_controller
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_id_for
-from millvib_env.envs.reward import ENV_IMPORTS
 from millvib_env.params import studied_range
 from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.benchmark import episode_records, format_table, summarize
@@ -76,7 +75,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "st
              "env_id": env_id}
             for n in controllers for i in range(0, plants, CHUNK)]
     parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
-                     desc=f"sweep {t.name}", preload=ENV_IMPORTS)
+                     desc=f"sweep {t.name}")
     records: dict[str, list] = {n: [] for n in controllers}
     for job, part in zip(jobs, parts):
         records[str(job["name"])].extend(part)

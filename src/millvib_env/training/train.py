@@ -35,7 +35,6 @@ from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
-from millvib_env.envs.reward import ENV_IMPORTS
 from millvib_env.tasks import Task, takes_task
 from millvib_env.threads import serial_unless_set
 from millvib_env.evaluation.benchmark import summarize
@@ -442,7 +441,7 @@ def train_seeds(seeds, *, task: str | Task = "startup", jobs: int = 2, save_dir:
     job_args = [{**kwargs, "task": the_task, "seed": s, "progress": False,
                  "save_dir": None if save_dir is None else str(Path(save_dir) / f"seed-{s}")} for s in seeds]
     return run_jobs(train, job_args, ray=ray, processes=jobs, num_cpus=cpus_per_seed,
-                    preload=("torch", "torch._dynamo", "stable_baselines3", *ENV_IMPORTS))
+                    preload=("torch", "torch._dynamo", "stable_baselines3"))
 
 
 def train_from_cli(args) -> int:

@@ -43,7 +43,6 @@ from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.config import cached_env_config
-from millvib_env.envs.reward import ENV_IMPORTS
 from millvib_env.params import MillParams
 from millvib_env.tasks import Task, takes_task
 from millvib_env.tuning import search as tuning  # the searches, called through the module (a test stands them in)
@@ -293,7 +292,7 @@ def _tuned_table(r: _Run, name: str, seeds: list[int], how: str, base: list[floa
              "version": r.version, "base": base} for i, j in cells]
     if r.jobs > 1:
         done = run_jobs(_tune_cell, jobs, processes=r.jobs, progress=r.progress,
-                        desc=f"tuning {name} grid ({r.jobs} processes)", preload=ENV_IMPORTS)
+                        desc=f"tuning {name} grid ({r.jobs} processes)")
     else:
         done = [_tune_cell(**job) for job in tqdm(jobs, desc=f"tuning {name} grid", unit="plant",
                                                   disable=not r.progress)]

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import optimize
 
+from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import oracle_table
 from millvib_env.control.lqr import LQRWeights, lqr_gains
@@ -264,8 +265,6 @@ def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = A
                   version: str = "v0") -> dict:
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
-    from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
-
     cfg = task.configs[version]
     table, gain_map = (oracle_table(task, version=version) if table is None else table), GainMap.from_config(cfg)
     costs: dict[float, float] = {}
