@@ -356,9 +356,9 @@ def _process_table() -> dict[int, tuple[int, str]]:
     return table
 
 
-def _descendants(pid: int) -> list[int]:
+def _descendants(pid: int, table: dict[int, tuple[int, str]] | None = None) -> list[int]:
     """Every process below `pid`: the pool's workers, multiprocessing's resource tracker and fork server."""
-    table = _process_table()
+    table = _process_table() if table is None else table
     found, frontier = [], [pid]
     while frontier:
         kids = [p for p, (ppid, _) in table.items() if ppid in frontier]
@@ -370,7 +370,7 @@ def _descendants(pid: int) -> list[int]:
 def _workers(pid: int) -> list[int]:
     """The pool's workers below `pid` (spawned ones are its children; a fork server's, its grandchildren)."""
     table = _process_table()
-    return [p for p in _descendants(pid) if p in table and "resource_tracker" not in table[p][1]
+    return [p for p in _descendants(pid, table) if p in table and "resource_tracker" not in table[p][1]
             and not (table[p][0] == pid and "forkserver" in table[p][1])]
 
 
