@@ -58,3 +58,17 @@ def test_without_a_cache_folder_scipy_designs_it_in_each_process(tmp_path, monke
     monkeypatch.setattr(fd, "_MEMO", {})
     assert np.array_equal(fd.butter_sos(order, wn, btype, fs), signal.butter(order, wn, btype=btype, fs=fs,
                                                                              output="sos"))
+
+
+def test_the_files_name_holds_the_arguments_the_format_and_the_versions(fresh_cache, monkeypatch):
+    import scipy
+
+    key = (2, (10.0, 1000.0), "bandpass", 10_000.0)
+    name = fd._file(key)
+    assert name is not None and name.parent == fresh_cache / "filters"
+    assert fd._file((2, (10.0, 1000.0), "bandpass", 20_000.0)) != name
+    monkeypatch.setattr(fd, "FORMAT", fd.FORMAT + 1)
+    assert fd._file(key) != name
+    monkeypatch.setattr(fd, "FORMAT", fd.FORMAT - 1)
+    monkeypatch.setattr(scipy, "__version__", "0.0.0")
+    assert fd._file(key) != name

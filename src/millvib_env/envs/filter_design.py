@@ -6,11 +6,11 @@ regression (`control.adaptive`), each with a second-order Butterworth filter tha
 making the environment, and every new process (a CLI command, a worker, a test's subprocess) paid it again.
 
 `butter_sos` keeps each design in this version's cache folder (`_numba_cache`, beside the compiled kernels): the
-float64 array scipy returned, bit for bit, in a file named by a hash of the design's arguments, of scipy's and
-numpy's versions and of the CPU features numpy dispatches to (which can move a transcendental function's last
-bit). A process that finds the file reads it (`np.load`, no pickles) and never imports `scipy.signal`; one that
-does not asks scipy and writes the file atomically. Where no cache folder is set, or it cannot be written,
-scipy designs it in every process, as before.
+float64 array scipy returned, bit for bit, in a file named by a hash of the design's arguments, of this module's
+`FORMAT`, of scipy's and numpy's versions and of the CPU features numpy dispatches to (which can move a
+transcendental function's last bit). A process that finds the file reads it (`np.load`, no pickles) and never
+imports `scipy.signal`; one that does not asks scipy and writes the file atomically. Where no cache folder is set,
+or it cannot be written, scipy designs it in every process, as before.
 """
 
 from __future__ import annotations
@@ -25,6 +25,9 @@ from millvib_env._paths import atomic_path
 
 __all__ = ["butter_sos"]
 
+#: the kept files' format and `_design`'s arguments: part of every file's name, so a change to either (raise it)
+#: never reads a file an earlier version wrote
+FORMAT = 1
 #: designs made or read in this process: (order, band, btype, fs) -> sos
 _MEMO: dict[tuple, np.ndarray] = {}
 
@@ -58,7 +61,7 @@ def _file(key: tuple) -> Path | None:
         from numpy._core._multiarray_umath import __cpu_features__ as features
     except ImportError:  # another numpy's layout: the versions alone
         features = {}
-    text = repr((key, scipy.__version__, np.__version__, sorted(k for k, on in features.items() if on)))
+    text = repr((FORMAT, key, scipy.__version__, np.__version__, sorted(k for k, on in features.items() if on)))
     return Path(folder) / "filters" / f"butter-{hashlib.sha256(text.encode()).hexdigest()[:24]}.npy"
 
 
