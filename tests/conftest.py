@@ -51,7 +51,6 @@ def shipped_agents_copy(tmp_path, monkeypatch):
     return root
 
 
-
 # The collector's full passes walk every object alive; by the end of collection that is torch's, JAX's and Ray's
 # too. Collection (imports) runs without them, and after collection and after each test what is left is collected
 # once and frozen (`gc.freeze`): a later full pass walks only what was made since. A run without this made 21 full
