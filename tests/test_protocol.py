@@ -213,6 +213,11 @@ def test_a_controller_of_your_own_is_benchmarked_beside_the_names():
     assert "pid-pf-robust" in result["controllers"]["my-pid"]["paired"]
     own = run_episodes(mine, result["plants"], task="startup")
     assert [r["cost"] for r in result["records"]["my-pid"]] == [r["cost"] for r in own]
+    # on another task it runs in that task's environment; the object given is left as it was
+    rolling = run_benchmark(["pid-robust", mine], **{**kw, "task": "rolling", "episodes": 2})
+    own = run_episodes(mine, rolling["plants"], task="rolling")
+    assert [r["cost"] for r in rolling["records"]["my-pid"]] == [r["cost"] for r in own]
+    assert mine.task is None
     assert "my-pid" in format_table(result) and "my-pid" in public_json(result)["controllers"]
     taken = FixedGainPolicy("pid-robust", PIDGains(1e6, 1.0))
     taken.env_id = "MillVib-GainSchedule-v1"

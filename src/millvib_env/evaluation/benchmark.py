@@ -15,6 +15,7 @@ start and the rest, the pump line, the 10-100 Hz band, ISO zones). Cost = severi
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import json
@@ -146,12 +147,13 @@ def episode_records(name: str, task: Task, seeds: list[int], env_id: str = "Mill
     crosses to the worker as it is); for an agent, its training seed `agent_seed` (default: the lowest it
     ships), recorded as `agent_seed`. A baseline runs in `env_id`'s version; an agent in its own."""
     ctrl = load_controller(name, task, seed=agent_seed, version=env_version(env_id))
-    return _run(ctrl, seeds, task, env_kwargs)
+    return _run(ctrl, seeds, env_kwargs)
 
 
-def _run(ctrl: Controller, seeds, task: Task, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
+def _run(ctrl: Controller, seeds, env_kwargs: dict | None = None, **kw) -> list[EpisodeRecord]:
+    """`ctrl`'s episodes on `seeds`, on the task it was loaded for (`Controller.task`)."""
     is_agent = ctrl.seed is not None  # a trained policy: an agent, or its exported graph
-    recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=task, env_kwargs=env_kwargs, **kw)
+    recs = run_episodes(ctrl, seeds, env_id=ctrl.env_id, task=ctrl.task, env_kwargs=env_kwargs, **kw)
     if is_agent:
         for r in recs:
             r["agent_seed"] = ctrl.seed
@@ -175,7 +177,7 @@ def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, pro
     for n in tqdm(names, desc=f"benchmark {task.name}: loading", unit="controller", disable=not progress, leave=False):
         if own and n in own:
             units.append((n, None))
-            loaded[(n, None)] = own[n]
+            loaded[(n, None)] = _on_task(own[n], task)
             continue
         first = load_controller(n, task, version=version)
         if first.seed is not None:  # a trained policy (an exported graph holds one seed)
@@ -189,6 +191,17 @@ def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, pro
             units.append((n, None))
             loaded[(n, None)] = first
     return units, loaded
+
+
+def _on_task(ctrl: Controller, task: Task) -> Controller:
+    """A user's controller bound to the benchmark's task (its runs take their environment's config from
+    `Controller.task`): the object itself where it was made for that task, else a shallow copy with `task` set,
+    so that the user's object is left as it was given."""
+    if ctrl.task is task:
+        return ctrl
+    bound = copy.copy(ctrl)
+    bound.task = task
+    return bound
 
 
 def _own_controllers(controllers: Any, version: str) -> tuple[list[str], dict[str, Controller]]:
@@ -239,35 +252,44 @@ def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[
     return [plants[i:i + size] for i in range(0, len(plants), size)]
 
 
-def _collect_records(units: list, loaded: dict, plants: list[int], task: Task, env_id: str, ray: str | None,
-                     progress: bool, processes: int = 1) -> dict[tuple, list[EpisodeRecord]]:
+def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
+                     progress: bool, processes: int = 1, label: str = "benchmark") -> dict[tuple, list[EpisodeRecord]]:
     """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as jobs (`_chunks`)
     on Ray or in `processes` local worker processes (each episode depends only on its seeds, so the records are
     the same)."""
     records: dict[tuple, list[EpisodeRecord]] = {}
     if ray is not None or processes > 1:
-        jobs = [{"name": n, "task": task, "seeds": chunk, "env_id": env_id, "agent_seed": s}
+        task_of = {n: c.task for (n, _), c in loaded.items()}  # each controller's, bound where it was loaded
+        jobs = [{"name": n, "task": task_of[n], "seeds": chunk, "env_id": env_id, "agent_seed": s}
                 for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
         agents = any(c.card is not None for c in loaded.values())
         parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
-                         desc=f"benchmark {task.name} ({'ray' if ray is not None else f'{processes} processes'})",
+                         desc=f"{label} ({'ray' if ray is not None else f'{processes} processes'})",
                          preload=("torch", "stable_baselines3") if agents else ())
         for job, part in zip(jobs, parts):
             records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
     else:
-        for unit in tqdm(units, desc=f"benchmark {task.name}", unit="run", disable=not progress):
-            records[unit] = _run(loaded[unit], plants, task)
+        for unit in tqdm(units, desc=label, unit="run", disable=not progress):
+            records[unit] = _run(loaded[unit], plants)
     return records
 
 
-def _scenario_records(ctrl, plant: int, task: Task) -> dict[str, dict]:
+def _scenario_records(ctrl, plant: int) -> dict[str, dict]:
     """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost."""
     out = {}
     for sc in distinct_plant_scenarios():
-        rec = _run(ctrl, [plant], task, scenario=sc)[0]
+        rec = _run(ctrl, [plant], scenario=sc)[0]
         out[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost")}
     return out
+
+
+def _header(task: Task, version: str, reference: str, seed: int, episodes: int, all_seeds: bool) -> dict:
+    """A benchmark's result before its runs: what it runs and on which loop."""
+    return {"controllers": {}, "task": task.name, "reference": reference, "seed": seed, "episodes": episodes,
+            "env_id": env_id_for("gain", version), "env_version": version,
+            "loop": loop_description(task.configs[version]), "all_seeds": bool(all_seeds), "plants": [],
+            "cost_scales": dict(COST_SCALES), "scenarios": {}, "records": {}}
 
 
 @takes_task()
@@ -312,29 +334,25 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
         raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
         names = [reference] + names  # loaded first: an unknown name fails at once, in one line
-    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
-    plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
-    cfg = t.configs[env_version]
-    result: dict = {"controllers": {}, "task": t.name, "reference": reference, "seed": seed, "episodes": episodes,
-                    "env_id": env_id, "env_version": env_version, "loop": loop_description(cfg),
-                    "all_seeds": bool(all_seeds), "plants": plants, "cost_scales": dict(COST_SCALES),
-                    "scenarios": {}, "records": {}}
+    result = _header(t, env_version, reference, seed, episodes, all_seeds)
+    label = f"benchmark {t.name}"
+    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
+    plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
+    result["plants"] = plants
     start = time.time()
-    records = _collect_records(units, loaded, plants, t, env_id, ray, progress, jobs)
-    for name in tqdm(names, desc=f"benchmark {t.name}: " + ("scenarios" if scenarios else "summaries"),
-                     unit="controller", disable=not progress, leave=False):
+    records = _collect_records(units, loaded, plants, env_id, ray, progress, jobs, label)
+    firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
+    for name in names:
         recs = [r for (n, _), part in records.items() if n == name for r in part]
-        first = loaded[next(u for u in units if u[0] == name and u in loaded)]
-        summary = summarize(recs)
-        summary["env_id"] = first.env_id
-        result["controllers"][name] = summary
+        result["controllers"][name] = {**summarize(recs), "env_id": firsts[name].env_id}
         result["records"][name] = recs
-        if scenarios:
-            result["scenarios"][name] = _scenario_records(first, plants[0], t)
+    if scenarios:
+        for name in tqdm(names, desc=f"{label}: scenarios", unit="controller", disable=not progress, leave=False):
+            result["scenarios"][name] = _scenario_records(firsts[name], plants[0])
     if progress:
-        print(f"benchmark {t.name}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
+        print(f"{label}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result)
     result["room"] = room(result)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
