@@ -36,9 +36,12 @@ def test_serial_and_threaded_kernels_give_the_same_episodes(monkeypatch):
 @pytest.mark.slow
 def test_fork_vector_env_steps_after_the_parent_used_threads_and_torch():
     code = textwrap.dedent("""
+        import sys
         import numpy as np, torch, gymnasium as gym, millvib_env
         venv = millvib_env.make_vec_env("MillVib-GainSchedule-v0", 16, seed=0)   # threaded kernel
         venv.reset(); venv.step(np.zeros((16, 3)))
+        # the registry lists the LQR and the MPC, whose solvers import these where they run, not with an env
+        assert "scipy.optimize" not in sys.modules and "scipy.sparse" not in sys.modules
         x = torch.randn(256, 256, requires_grad=True); (x @ x).sum().backward()  # torch's pool
         envs = gym.make_vec("MillVib-GainSchedule-v0", 2, vectorization_mode="async",
                             vector_kwargs={"context": "fork"})

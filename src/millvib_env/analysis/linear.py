@@ -32,7 +32,6 @@ from typing import Literal, Sequence
 
 import numpy as np
 from numba import njit
-from scipy import optimize
 
 from millvib_env._checks import instance, integer, real, reals
 from millvib_env.distributed import run_jobs
@@ -418,6 +417,8 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
     vals = [g(v) for v in grid]
     for a, b, va, vb in zip(grid[:-1], grid[1:], vals[:-1], vals[1:]):
         if va < 0 <= vb:
+            from scipy import optimize  # here: importing this module (as an environment does) needs no scipy
+
             return 10.0 ** optimize.brentq(g, a, b, xtol=1e-6)
     return math.inf
 

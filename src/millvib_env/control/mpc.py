@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy import linalg, sparse
 
 from millvib_env._checks import instance, real
 from millvib_env.analysis.linear import linearize
@@ -139,6 +138,8 @@ def _solve_first_move(solver: Any, q: np.ndarray) -> tuple[float, int]:
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    from scipy import linalg  # here: an environment (whose registry lists the MPC) need not import scipy
+
     n, m = A.shape[0], B.shape[1]
     M = np.zeros((n + m, n + m))
     M[:n, :n], M[:n, n:] = A, B
@@ -148,6 +149,7 @@ def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
 
 def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float = 0.0) -> MPCModel:
     """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`."""
+    from scipy import linalg, sparse
 
     instance("params", params, MillParams, "a MillParams")
     instance("settings", settings, MPCSettings, "an MPCSettings")
@@ -275,6 +277,7 @@ class MPCPolicy(Controller):
             assert model is not None  # a key is stored with its model
             return model
         import osqp
+        from scipy import sparse
 
         m = mpc_model(base.replace(c1=now["c1"], Ct=now["Ct"]), self.settings, core.loop.dt_s, xd)
         N = m.H.shape[0]
