@@ -37,7 +37,10 @@ def test_a_previous_result_of_the_same_command_is_replaced_but_not_once_a_user_a
     assert cli_main(QUICK + ["--out", str(out)]) == 0
     marker = json.loads((out / RESULT_MARKER).read_text())
     assert marker["command"] == "benchmark" and "benchmark.json" in marker["entries"]
-    assert cli_main(QUICK + ["--out", str(out)]) == 0  # its own previous result
+    assert list(out.glob("*.png"))
+    # its own previous result, replaced as a whole: without figures (--no-figures) the earlier ones are gone
+    assert cli_main(QUICK + ["--out", str(out), "--no-figures"]) == 0
+    assert not list(out.glob("*.png")) and (out / "benchmark.json").exists()
     (out / "notes.txt").write_text("mine")
     capsys.readouterr()
     assert cli_main(QUICK + ["--out", str(out)]) == 2
@@ -52,7 +55,7 @@ def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys,
     import errno
 
     out = tmp_path / "results"
-    assert cli_main(QUICK + ["--out", str(out)]) == 0
+    assert cli_main(QUICK + ["--out", str(out), "--no-figures"]) == 0  # the data files are enough here
     before = (out / "benchmark.json").read_bytes()
     capsys.readouterr()
 
@@ -61,7 +64,7 @@ def test_a_full_disk_is_one_line_and_the_previous_result_stays(tmp_path, capsys,
 
     monkeypatch.setattr(os, "replace", full)
     monkeypatch.setattr(os, "rename", full)
-    assert cli_main(QUICK + ["--out", str(out)]) == 2
+    assert cli_main(QUICK + ["--out", str(out), "--no-figures"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "No space left on device" in err[0] and "Traceback" not in err[0], err
     monkeypatch.undo()

@@ -110,13 +110,14 @@ BAD_OR_ODD = ["0", "-1", "2", "1e9", "3.5", "nan", "inf", "abc", "", "99999999",
               "change", "pid-paper", "ppo-gain-pf", "x.onnx", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1"]
 FUZZ_FLAGS = {
     # benchmark: a valid draw runs pid-paper on 2 plants; train: --n-timesteps is always invalid, so no run trains
-    "benchmark": (["--controllers", "pid-paper", "--no-scenarios", "--episodes", "2", "--quiet"],
+    # benchmark and sweep: their figures are drawn by tests of their own (tests/_figures.py); here, the data only
+    "benchmark": (["--controllers", "pid-paper", "--no-scenarios", "--episodes", "2", "--quiet", "--no-figures"],
                   ["--task", "--episodes", "--seed", "--controllers", "--json", "--out", "--env"]),
     "train": (["--algo", "ppo", "--quiet"], ["--algo", "--task", "--seed", "--jobs", "--eval-freq", "--env",
                                               "--n-eval-episodes", "--checkpoint-freq", "--config", "--save-dir"]),
     "simulate": (["--t-end", "0.05"], ["--set", "--kp", "--ki", "--kd", "--t-end", "--x0", "--preset", "--method",
                                        "--csv"]),
-    "sweep": (["--controllers", "pid-paper", "--plants", "2", "--quiet"],
+    "sweep": (["--controllers", "pid-paper", "--plants", "2", "--quiet", "--no-figures"],
               ["--plants", "--params", "--task", "--seed", "--jobs", "--controllers"]),
 }
 

@@ -265,3 +265,7 @@ def test_sweep_cli_writes_its_folder(tmp_path):
     data = json.loads((out / "summary.json").read_text())
     assert data["plants"] == 4 and set(data["controllers"]) == {"pid-paper", "pid-robust"}
     assert data["seed"] == 60_000  # 40000 into startup's held-out range
+    # --no-figures: the data alone; the folder, its own previous result, is replaced as a whole
+    assert cli_main(["sweep", "--controllers", "pid-paper", "--plants", "1", "--out", str(out), "--quiet",
+                     "--no-figures"]) == 0
+    assert (out / "plants.csv").exists() and not (out / "maps.png").exists()

@@ -491,6 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="first plant seed (default: 40000 into the task's "
                                                           "held-out range)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced as a whole)")
+    p.add_argument("--no-figures", action="store_true", help="write plants.csv and summary.json only, not maps.png")
     p.add_argument("--jobs", type=int, default=1, help="local processes (default 1)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="run on Ray: a local cluster, or the running cluster at ADDRESS")

@@ -629,16 +629,17 @@ def public_json(result: dict) -> dict:
     return {k: v for k, v in result.items() if k not in ("records", "wall_time_s")}
 
 
-def _write_outputs(result: dict, out: Path, task: Task) -> list[Path]:
+def _write_outputs(result: dict, out: Path, task: Task, figures: bool = True) -> list[Path]:
     """Write the result folder of a benchmark of `task` as a whole: into a temporary sibling, then put in place
-    (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files."""
+    (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files. Without
+    `figures`, the data files only."""
 
     with atomic_folder(out, command="benchmark") as tmp:
-        files = _write_files(result, tmp, task)
+        files = _write_files(result, tmp, task, figures)
     return [out / f.name for f in files]
 
 
-def _write_files(result: dict, out: Path, task: Task) -> list[Path]:
+def _write_files(result: dict, out: Path, task: Task, figures: bool = True) -> list[Path]:
     files = []
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=["controller", *CSV_FIELDS], extrasaction="ignore")
@@ -649,6 +650,8 @@ def _write_files(result: dict, out: Path, task: Task) -> list[Path]:
     files.append(write_text_atomic(out / "episodes.csv", buf.getvalue()))
     files.append(write_text_atomic(out / "benchmark.md", format_table(result) + "\n"))
     files.append(write_text_atomic(out / "benchmark.json", json.dumps(public_json(result), indent=2)))
+    if not figures:
+        return files
     files.append(_plot_plane(result, out / "severity_plane.png"))
     if result.get("reference", "pid-robust") in result["records"] and len(result["records"]) > 1:
         files.append(_plot_paired_plane(result, out / "paired_plane.png"))
@@ -832,6 +835,6 @@ def benchmark_from_cli(args) -> int:
         write_text_atomic(args.json, json.dumps(public_json(result), indent=2))
         print(f"wrote {args.json}")
     if args.out:
-        files = _write_outputs(result, Path(args.out), args.task)  # the task the CLI resolved
+        files = _write_outputs(result, Path(args.out), args.task, figures=not args.no_figures)  # the CLI's Task
         print(f"wrote {len(files)} files to {args.out}")
     return 0

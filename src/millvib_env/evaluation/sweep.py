@@ -85,7 +85,9 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "st
     return {"records": records, "summary": summary}
 
 
-def write_sweep(result: dict, out: str | Path) -> list[Path]:
+def write_sweep(result: dict, out: str | Path, *, figures: bool = True) -> list[Path]:
+    """Write a sweep's folder as a whole (`atomic_folder`): plants.csv, summary.json and, with `figures`, maps.png.
+    Returns the files written."""
 
     out = Path(out)
     params = result["summary"]["params"]
@@ -100,8 +102,9 @@ def write_sweep(result: dict, out: str | Path) -> list[Path]:
                 writer.writerow({"controller": name, **r})
         write_text_atomic(tmp / "plants.csv", buf.getvalue())
         write_text_atomic(tmp / "summary.json", json.dumps(result["summary"], indent=2, default=float))
-        save_figure(_maps(result), tmp / "maps.png", dpi=90)
-    return [out / "plants.csv", out / "summary.json", out / "maps.png"]
+        if figures:
+            save_figure(_maps(result), tmp / "maps.png", dpi=90)
+    return [out / "plants.csv", out / "summary.json", *([out / "maps.png"] if figures else [])]
 
 
 def _maps(result: dict):
@@ -148,6 +151,6 @@ def sweep_from_cli(args) -> int:
              f"RMS / {COST_SCALES['tracking_um']} um; [95 % bootstrap intervals]")
     print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"], "title": title,
                         "cost_scales": dict(COST_SCALES), "controllers": s["controllers"]}))
-    files = write_sweep(result, args.out)
+    files = write_sweep(result, args.out, figures=not args.no_figures)
     print(f"wrote {len(files)} files to {args.out}")
     return 0

@@ -93,5 +93,8 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "episode depends only on its seeds, so the numbers are the same for any number")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
+    p.add_argument("--no-figures", action="store_true",
+                   help="with --out: write the CSV, the table and the JSON only, not the plots (a few tenths of a "
+                        "second each)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=func)
