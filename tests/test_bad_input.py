@@ -37,7 +37,8 @@ def _one_line_refusal(argv, capsys):
 ODD = ["0", "-1", "1", "2.5", "1e9", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "bogus", "pid-paper"]
 FLAGS = {
     # each base runs in a few seconds when every drawn value is valid
-    "reproduce": (["--t-end", "0.05", "--no-maps", "--no-solver-study", "--quiet", "--out", "r"],
+    # reproduce: the numbers alone (its figures are drawn by a test of their own, tests/test_paper.py)
+    "reproduce": (["--t-end", "0.05", "--no-maps", "--no-solver-study", "--no-figures", "--quiet", "--out", "r"],
                   ["--t-end", "--resolution", "--out", "--method", "--jobs"]),
     "speed": (["--t-end", "0.05", "--repeats", "1", "--batch-size", "4", "--plant-only", "--quiet"],
               ["--t-end", "--repeats", "--batch-size", "--json"]),

@@ -102,3 +102,16 @@ def test_reproduces_figures_keep_every_text_inside_and_their_panels_apart(monkey
     for fig in drawn:
         texts_inside_and_panels_apart(fig)
         plt.close(fig)
+
+
+def test_reproduce_without_figures_writes_the_numbers_alone(tmp_path):
+    """`millvib reproduce --no-figures`: the cases' CSV and summary.json, no PNG (the test above draws the
+    figures)."""
+    import json
+
+    import millvib_env.analysis.paper as paper
+
+    paper.reproduce(tmp_path / "a", t_end=0.1, maps=False, solver_study=False, progress=False, figures=False)
+    assert sorted(p.name for p in (tmp_path / "a").iterdir() if not p.name.startswith(".")) == \
+        ["paper_cases.csv", "summary.json"]
+    assert len(json.loads((tmp_path / "a" / "summary.json").read_text())["cases"]) == 9

@@ -142,7 +142,8 @@ def _cmd_reproduce(args) -> int:
 
     summary = reproduce(args.out, t_end=args.t_end, method=args.method, maps=not args.no_maps,
                         map_resolution=args.resolution, progress=not args.quiet,
-                        solver_study=not args.no_solver_study, solver_study_only=args.solver_study, jobs=args.jobs)
+                        solver_study=not args.no_solver_study, solver_study_only=args.solver_study, jobs=args.jobs,
+                        figures=not args.no_figures)
     if "table" in summary:
         print(summary["table"])
         print()
@@ -332,6 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "reference; tail amplitude, frequency and kind of motion per run (CSV, figures, "
                         "summary.json's solver_study)")
     p.add_argument("--no-solver-study", action="store_true", help="skip the solver study in a full run")
+    p.add_argument("--no-figures", action="store_true", help="write the numbers alone (CSV, summary.json), no PNG")
     p.add_argument("--resolution", type=int, default=14, help="grid points per axis of the maps (default 14)")
     p.add_argument("--jobs", type=int, default=1,
                    help="processes for the stability maps' cells and the solver study's runs (default 1; each is "

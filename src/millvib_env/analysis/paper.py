@@ -124,9 +124,9 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
 
 
 def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
-                processes: int = 1) -> tuple[Path, Path]:
-    """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal."""
-    from matplotlib.colors import ListedColormap
+                processes: int = 1, figure: bool = True) -> list[Path]:
+    """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal: its CSV and, with
+    `figure`, its picture with the linear critical KP."""
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     kps = np.geomspace(1e4, 1e7, n_kp)
@@ -144,6 +144,14 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
         sev[i, j] = np.nan if run.diverged else run.severity()
         rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
                      "severity_mm_s": f"{sev[i, j]:.4f}"})
+    csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
+    return [_motion_figure(out, c1s, kps, grid, processes), csv_path] if figure else [csv_path]
+
+
+def _motion_figure(out: Path, c1s: np.ndarray, kps: np.ndarray, grid: np.ndarray, processes: int) -> Path:
+    from matplotlib.colors import ListedColormap
+
+    kinds = ["decay", "periodic", "quasi-periodic", "diverged"]
     fig, grid_ax, _ = panel_grid(1, 1, width=7, height=5, colorbar=False, margins=(0.95, 0.2, 0.55, 0.35))
     ax = grid_ax[0, 0]
     colors = ["#cfe8cf", "#f6c177", "#e06c75", "#555555"]
@@ -167,17 +175,22 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
                 label=f"linear KP_crit ({friction})")
     ax.set_xlim(kps[0] / 1.3, kps[-1] * 1.3)
     ax.legend(loc="lower left", fontsize=8)
-    png = save_figure(fig, out / "motion_map_c1_kp.png")
-    csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
-    return png, csv_path
+    return save_figure(fig, out / "motion_map_c1_kp.png")
 
 
-def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes: int = 1) -> tuple[Path, Path]:
-    """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1)."""
+def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes: int = 1,
+                      figure: bool = True) -> list[Path]:
+    """Critical KP of the linearised loop against c1 (for three Ct) and against Ct (for three c1): its CSV and,
+    with `figure`, its picture."""
 
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     cts = np.geomspace(*studied_range("Ct"), n_ct)
     stick, slide = stability_maps(c1s, cts, frictions=("stick", "sliding"), progress=progress, processes=processes)
+    rows = [{"c1": f"{c1s[i]:.6g}", "Ct": f"{cts[j]:.6g}", "kp_crit_stick": f"{stick[i, j]:.6g}",
+             "kp_crit_sliding": f"{slide[i, j]:.6g}"} for i in range(n_c1) for j in range(n_ct)]
+    csv_path = _write_csv(out / "stability_map.csv", rows)
+    if not figure:
+        return [csv_path]
     fig, grid, _ = panel_grid(1, 2, width=6, height=4.5, colorbar=False, margins=(0.85, 0.15, 0.55, 0.35))
     axes = grid[0]
     picks_ct = [0, n_ct // 2, n_ct - 1]
@@ -198,10 +211,7 @@ def _stability_figure(out: Path, n_c1: int, n_ct: int, progress: bool, processes
         ax.legend(fontsize=7)
     axes[0].set_title("Critical KP vs damping (KI = 0.001)")
     axes[1].set_title("Critical KP vs leakage (KI = 0.001)")
-    png = save_figure(fig, out / "stability_map.png")
-    rows = [{"c1": f"{c1s[i]:.6g}", "Ct": f"{cts[j]:.6g}", "kp_crit_stick": f"{stick[i, j]:.6g}",
-             "kp_crit_sliding": f"{slide[i, j]:.6g}"} for i in range(n_c1) for j in range(n_ct)]
-    return png, _write_csv(out / "stability_map.csv", rows)
+    return [save_figure(fig, out / "stability_map.png"), csv_path]
 
 
 def _write_csv(path: Path, rows: list[dict]) -> Path:
@@ -238,8 +248,8 @@ def claims(results: list[CaseResult]) -> list[dict]:
 
 def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", maps: bool = True,
               map_resolution: int = 14, progress: bool = True, solver_study: bool = True,
-              solver_study_only: bool = False, jobs: int = 1) -> dict:
-    """Run the studies, write figures (PNG) and numbers (CSV, JSON) into `out_dir`.
+              solver_study_only: bool = False, jobs: int = 1, figures: bool = True) -> dict:
+    """Run the studies, write figures (PNG; none without `figures`) and numbers (CSV, JSON) into `out_dir`.
 
     `solver_study`: also integrate the nine cases with ode45's default tolerances and a ladder of
     tighter ones (`analysis.solver_study`); `solver_study_only`: only that (the other entries of an
@@ -250,13 +260,13 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
     final = Path(out_dir)
     with atomic_folder(final, keep_existing=solver_study_only, command="reproduce") as out:
         summary = _reproduce_into(out, t_end, method, maps, map_resolution, progress, solver_study,
-                                  solver_study_only, jobs)
+                                  solver_study_only, jobs, figures)
     summary["files"] = [str(final / Path(f).name) for f in summary["files"]]
     return summary
 
 
 def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
-                    solver_study_only, jobs: int = 1) -> dict:
+                    solver_study_only, jobs: int = 1, figures: bool = True) -> dict:
     files: list[Path] = []
     summary: dict = {}
     if solver_study_only:
@@ -265,12 +275,12 @@ def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, so
     else:
         results, runs = run_studies(t_end, method)
         files.append(_write_csv(out / "paper_cases.csv", [r.row() for r in results]))
-        for study in PAPER_STUDIES:
+        for study in PAPER_STUDIES if figures else ():
             files.append(_plot_study(study, runs[study.key], out))
             files.append(_plot_severity(study, [r for r in results if r.study == study.key], out))
         if maps:
-            files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress, jobs))
-            files.extend(_stability_figure(out, map_resolution, map_resolution, progress, jobs))
+            files.extend(_motion_map(out, t_end, map_resolution, map_resolution + 4, progress, jobs, figures))
+            files.extend(_stability_figure(out, map_resolution, map_resolution, progress, jobs, figures))
         summary = {"t_end_s": t_end, "method": method, "claims": claims(results),
                    "cases": [r.row() for r in results]}
     if solver_study or solver_study_only:
@@ -278,7 +288,8 @@ def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, so
 
         rows, solver_runs = run_solver_study(t_end, progress=progress, processes=jobs)
         files.append(_write_csv(out / "solver_study.csv", [r.row() for r in rows]))
-        files.extend(plot_solver_study(rows, solver_runs, out))
+        if figures:
+            files.extend(plot_solver_study(rows, solver_runs, out))
         summary["solver_study"] = {"rows": [r.row() for r in rows], "verdicts": verdicts(rows)}
     public = {k: v for k, v in summary.items() if k not in ("table", "files", "solver_table")}
     files.append(write_text_atomic(out / "summary.json", json.dumps(public, indent=2)))
