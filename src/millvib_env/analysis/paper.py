@@ -123,6 +123,10 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
     return path
 
 
+#: the motion map's classes, in the order of its colours
+_MOTION_KINDS = ("decay", "periodic", "quasi-periodic", "diverged")
+
+
 def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
                 processes: int = 1, figure: bool = True) -> list[Path]:
     """Simulated kind of motion over (c1, KP) from the paper's 1 mm start, Ct nominal: its CSV and, with
@@ -133,14 +137,13 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
     params = [MillParams(c1=c) for c in c1s for _ in kps]
     gains = [PIDGains(k, PAPER_GAINS.ki) for _ in c1s for k in kps]
     batch = simulate_batch(params, gains, t_end)
-    kinds = ["decay", "periodic", "quasi-periodic", "diverged"]
     grid = np.zeros((n_c1, n_kp), dtype=int)
     sev = np.full((n_c1, n_kp), np.nan)
     rows = []
     for idx, run in enumerate(batch):
         i, j = divmod(idx, n_kp)
         m = classify_motion(run)
-        grid[i, j] = kinds.index(m.kind)
+        grid[i, j] = _MOTION_KINDS.index(m.kind)
         sev[i, j] = np.nan if run.diverged else run.severity()
         rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
                      "severity_mm_s": f"{sev[i, j]:.4f}"})
@@ -151,7 +154,6 @@ def _motion_map(out: Path, t_end: float, n_c1: int, n_kp: int, progress: bool,
 def _motion_figure(out: Path, c1s: np.ndarray, kps: np.ndarray, grid: np.ndarray, processes: int) -> Path:
     from matplotlib.colors import ListedColormap
 
-    kinds = ["decay", "periodic", "quasi-periodic", "diverged"]
     fig, grid_ax, _ = panel_grid(1, 1, width=7, height=5, colorbar=False, margins=(0.95, 0.2, 0.55, 0.35))
     ax = grid_ax[0, 0]
     colors = ["#cfe8cf", "#f6c177", "#e06c75", "#555555"]
@@ -159,7 +161,7 @@ def _motion_figure(out: Path, c1s: np.ndarray, kps: np.ndarray, grid: np.ndarray
     ax.pcolormesh(kps, c1s, grid, cmap=cmap, vmin=-0.5, vmax=3.5, shading="nearest")
     ax.set(xscale="log", yscale="log", xlabel="KP (V/m)", ylabel="c1 (N s/m)",
            title="Motion after a 1 mm start (Ct = 5e-16, KI = 0.001)")
-    for k, color in zip(kinds, colors):
+    for k, color in zip(_MOTION_KINDS, colors):
         ax.scatter([], [], marker="s", color=color, label=k)
     for study in PAPER_STUDIES:
         for case in study.cases:
