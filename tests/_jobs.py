@@ -25,3 +25,12 @@ def modules_a_worker_has(names: list) -> list:
     import sys
 
     return [n in sys.modules for n in names]
+
+
+def tune_in_a_shared_study(storage: str, study_name: str, n_trials: int) -> dict:
+    """`n_trials` trials of startup's PID study in `storage`, as a second terminal's `millvib tune --optuna` would."""
+    from millvib_env.tasks import get_task
+    from millvib_env.tuning.search import tune_optuna
+
+    return tune_optuna([10100, 10101], task=get_task("startup"), storage=storage, study_name=study_name,
+                       n_trials=n_trials)

@@ -87,14 +87,17 @@ def test_a_failing_job_stops_the_other_workers_instead_of_waiting_for_them(tmp_p
 
 def test_a_pool_that_asks_for_more_modules_gets_workers_that_have_them_imported():
     """A later pool whose `preload` the running fork server lacks (torch, after a pool of baselines) restarts it:
-    its workers start with the module imported instead of each importing it."""
-    from millvib_env.distributed import run_jobs
+    its workers start with the module imported instead of each importing it. So do the modules a command of
+    several pools declares (`expect_modules`, `millvib reproduce --jobs N`), and only within its block."""
+    from millvib_env import distributed
     from tests._jobs import modules_a_worker_has
 
-    module = "xml.dom.minidom"  # imported by neither the package nor the tests
-    run_jobs(modules_a_worker_has, [{"names": [module]}] * 2, processes=2)
-    assert run_jobs(modules_a_worker_has, [{"names": [module]}] * 2, processes=2,
-                    preload=(module,)) == [[True]] * 2
+    asked, declared = "xml.dom.minidom", "xml.dom.pulldom"  # imported by neither the package nor the tests
+    distributed.run_jobs(modules_a_worker_has, [{"names": [asked]}] * 2, processes=2)  # a server without them
+    with distributed.expect_modules(declared):
+        assert distributed.run_jobs(modules_a_worker_has, [{"names": [asked, declared]}] * 2, processes=2,
+                                    preload=(asked,)) == [[True, True]] * 2
+    assert declared not in distributed._expected
 
 
 def test_a_worker_runs_in_the_callers_environment_and_folder_as_they_are_at_each_pool(tmp_path, monkeypatch):

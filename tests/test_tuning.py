@@ -1,6 +1,4 @@
 """Tuning at scale: an Optuna study in shared storage, worked on by several processes."""
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -10,15 +8,13 @@ optuna = pytest.importorskip("optuna")
 
 @pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 def test_two_workers_share_one_study_through_a_journal_file(tmp_path):
+    """Two worker processes (forks of the package's fork server, `distributed.run_jobs`), running at once as two
+    terminals' `millvib tune --optuna journal:FILE` would, add their trials to one study."""
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import tune_in_a_shared_study
+
     storage = f"journal:{tmp_path / 'study.log'}"
-    code = ("from millvib_env.tasks import get_task; from millvib_env.tuning.search import tune_optuna; "
-            f"print(tune_optuna([10100, 10101], task=get_task('startup'), storage={storage!r}, study_name='s', "
-            "n_trials=2))")
-    workers = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-               for _ in range(2)]
-    for w in workers:
-        out, err = w.communicate(timeout=300)
-        assert w.returncode == 0, err[-2000:]
+    run_jobs(tune_in_a_shared_study, [{"storage": storage, "study_name": "s", "n_trials": 2}] * 2, processes=2)
     from millvib_env.tuning.search import optuna_storage
 
     study = optuna.load_study(study_name="s", storage=optuna_storage(storage))

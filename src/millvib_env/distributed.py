@@ -16,13 +16,14 @@ the local and the Ray runs give the same numbers.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import multiprocessing as mp
 import os
 import signal
 import threading
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["run_jobs", "ray_available"]
+__all__ = ["run_jobs", "ray_available", "expect_modules"]
 
 
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
@@ -83,6 +84,22 @@ def _start_worker(environ: dict[str, str]) -> None:
 
 #: the modules the running fork server imported (`_pool_context`); empty before this process's first pool
 _server_modules: set[str] = set()
+#: modules that this process's later pools will need (`expect_modules`): the fork server imports them at its start
+_expected: set[str] = set()
+
+
+@contextlib.contextmanager
+def expect_modules(*names: str) -> Iterator[None]:
+    """Within the block, the fork server imports `names` too when it starts: a command of several pools
+    (`millvib reproduce --jobs N`) declares every pool's module before the first, so the workers of a later pool
+    whose function lives in another module (the solver study, after the stability maps) do not each import it and
+    what it imports (scipy.signal and scipy.stats there: about 0.7 CPU-s a worker)."""
+    added = set(names) - _expected
+    _expected.update(added)
+    try:
+        yield
+    finally:
+        _expected.difference_update(added)
 
 
 def _pool_context(fn: Callable, preload: Sequence[str] = ()):
@@ -90,18 +107,21 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
 
     A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again: 1-3 CPU-s each,
     at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
-    the first pool of this process, that imports the package, the module of the pool's function and the modules
-    in `preload` (torch for training) once; every worker after that is a fork of it, so it starts with those
-    modules imported and inherits no thread pool, torch state or open file of this process (the server runs
-    none). A later pool that asks for a module the server has not imported (training after a benchmark of
-    baselines, in one session) restarts it with every module asked for so far, so that its workers do not each
-    import torch. A worker runs in this process's current environment (`_start_worker`) and working folder; a
-    variable read when a module is imported (NUMBA_*) is the server's, i.e. this process's when it started."""
+    the first pool of this process, that imports once the package, the module of the pool's function, the
+    modules in `preload` (torch for training) and those a command declared (`expect_modules`); every worker
+    after that is a fork of it, so it starts with those modules imported and inherits no thread pool, torch
+    state or open file of this process (the server runs none). A later pool that asks for a module the server
+    has not imported (training after a benchmark of baselines, in one session) restarts it with every module
+    asked for so far, so that its workers do not each import torch; a later pool's own function module, if
+    not declared, is imported by each of its workers. A worker runs in this process's current environment
+    (`_start_worker`) and working folder; a variable read when a module is imported (NUMBA_*) is the server's,
+    i.e. this process's when it started."""
     if "forkserver" not in mp.get_all_start_methods():
         return mp.get_context("spawn")
     from multiprocessing import forkserver
 
     ctx = mp.get_context("forkserver")
+    preload = [*preload, *sorted(_expected)]
     if _server_modules and not set(preload) <= _server_modules:
         stop = getattr(forkserver._forkserver, "_stop", None)  # CPython's own (3.8-3.13); else workers import
         if stop is not None:

@@ -29,7 +29,7 @@ from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.linear import Friction, critical_kp, stability_maps
 from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
-from millvib_env.distributed import run_jobs
+from millvib_env.distributed import expect_modules, run_jobs
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains, studied_range
 from millvib_env.plant.integrate import SimResult, simulate_batch
 from millvib_env.severity import iso_zone
@@ -269,6 +269,18 @@ def reproduce(out_dir: str | Path, *, t_end: float = 1.0, method: str = "fast", 
 
 def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
                     solver_study_only, jobs: int = 1, figures: bool = True) -> dict:
+    modules = []  # the pools' modules: each pool's workers are forked with its module imported
+    if jobs > 1 and maps and not solver_study_only:
+        modules.append("millvib_env.analysis.linear")
+    if jobs > 1 and (solver_study or solver_study_only):
+        modules.append("millvib_env.analysis.solver_study")
+    with expect_modules(*modules):
+        return _reproduce_steps(out, t_end, method, maps, map_resolution, progress, solver_study,
+                                solver_study_only, jobs, figures)
+
+
+def _reproduce_steps(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
+                     solver_study_only, jobs: int, figures: bool) -> dict:
     files: list[Path] = []
     summary: dict = {}
     if solver_study_only:
