@@ -1,7 +1,14 @@
 """Shared fixtures. numba compiles each kernel once per source version (cached on disk, see
-millvib_env._numba_cache); the first test that simulates pays it, the rest reuse it."""
+millvib_env._numba_cache); the first test that simulates pays it, the rest reuse it.
+
+`python -m pytest --cpu-report FILE` writes where the suite's CPU goes: each test's CPU seconds, machine-wide (every
+process on the machine, so a test's fresh interpreters, pool workers and Ray daemons count; run it on an idle
+machine), its own (this process) and its waited-for children's, dearest first. A measurement, never an assertion.
+"""
 import gc
 import os
+import resource
+import time
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
@@ -68,3 +75,63 @@ def pytest_collection_finish(session):
 def pytest_runtest_teardown(item, nextitem):
     gc.collect()
     gc.freeze()
+
+
+def pytest_addoption(parser):
+    parser.addoption("--cpu-report", metavar="FILE", default=None,
+                     help="write each test's CPU seconds (machine-wide, this process, its children), dearest first")
+
+
+def pytest_configure(config):
+    path = config.getoption("--cpu-report")
+    if path is not None:
+        from millvib_env._paths import check_output
+
+        try:
+            check_output(path, "--cpu-report")  # before the suite runs, not after
+        except ValueError as err:
+            raise pytest.UsageError(str(err)) from None
+
+
+def _machine_cpu_s() -> float:
+    """CPU seconds every processor has spent outside idle and I/O wait since boot (/proc/stat), or this process's
+    and its waited-for children's where there is no /proc/stat."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            user, nice, system, _idle, _iowait, irq, softirq = map(int, f.readline().split()[1:8])
+        return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError):
+        own, kids = _own_cpu_s()
+        return own + kids
+
+
+def _own_cpu_s() -> tuple[float, float]:
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime, kids.ru_utime + kids.ru_stime
+
+
+_cpu_rows: list[tuple[float, float, float, float, str]] = []
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not item.config.getoption("--cpu-report"):
+        yield
+        return
+    machine, (own, kids), wall = _machine_cpu_s(), _own_cpu_s(), time.perf_counter()
+    yield
+    own1, kids1 = _own_cpu_s()
+    _cpu_rows.append((_machine_cpu_s() - machine, own1 - own, kids1 - kids, time.perf_counter() - wall, item.nodeid))
+
+
+def pytest_sessionfinish(session):
+    path = session.config.getoption("--cpu-report")
+    if not path or not _cpu_rows:
+        return
+    from millvib_env._paths import write_text_atomic
+
+    lines = ["machine_cpu_s own_cpu_s children_cpu_s wall_s test"]
+    lines += ["%.2f %.2f %.2f %.2f %s" % row for row in sorted(_cpu_rows, reverse=True)]
+    totals = [sum(row[k] for row in _cpu_rows) for k in range(4)]
+    lines.append("%.2f %.2f %.2f %.2f (all %d tests; collection and start-up not included)" % (*totals, len(_cpu_rows)))
+    write_text_atomic(path, "\n".join(lines) + "\n")
