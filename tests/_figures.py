@@ -3,10 +3,11 @@
 
 def texts_inside_and_panels_apart(fig) -> None:
     """Every visible axes of `fig`, with every text it draws (title, labels, drawn tick labels), lies inside the
-    figure, and no two of them overlap (as savefig draws the figure)."""
+    figure, and no two of them overlap (as savefig lays the figure out)."""
     from matplotlib.transforms import Bbox
 
-    fig.canvas.draw()  # as savefig draws it: the labels' places are set while drawing
+    # as savefig draws it (the labels' places are set while drawing), without making the pixels: the same boxes
+    fig.draw_without_rendering()
     renderer = fig.canvas.get_renderer()
     inside = fig.bbox.padded(1.0)
     boxes = []
