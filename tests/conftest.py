@@ -17,9 +17,10 @@ import pytest
 from hypothesis import settings
 
 # Property-based tests are derandomized by default (the "ci" profile): the same commit always draws the
-# same examples, so a suite's verdict never depends on the draw. A longer randomized fuzz is
-# `HYPOTHESIS_PROFILE=fuzz python -m pytest tests/test_reliability.py tests/test_integrate.py -q`;
-# whatever it finds becomes a fixed example (@example or a plain test) in the suite.
+# same examples, so a suite's verdict never depends on the draw. A longer randomized fuzz is `HYPOTHESIS_PROFILE=fuzz
+# python -m pytest tests/test_reliability.py tests/test_integrate.py tests/test_bad_input.py -q`
+# (every property-based test draws at least the profile's 1,000 examples through `tests._fuzz.examples`, or
+# MILLVIB_FUZZ_EXAMPLES); whatever it finds becomes a fixed example (@example or a plain test) in the suite.
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
 settings.register_profile("fuzz", max_examples=1000, derandomize=False, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))

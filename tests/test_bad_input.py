@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from millvib_env import MillParams, PIDGains, severity, tasks
 from millvib_env._paths import config_dir
 from millvib_env.cli import main as cli_main
+from tests._fuzz import examples
 
 
 def _run(argv, capsys):
@@ -51,7 +52,7 @@ FLAGS = {
 
 
 @pytest.mark.slow
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+@settings(max_examples=examples(25), deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(command=st.sampled_from(sorted(FLAGS)), data=st.data())
 def test_every_subcommand_answers_odd_flags_with_0_or_one_line(command, data, tmp_path_factory, capsys):
@@ -411,7 +412,7 @@ def _loaders():
 
 
 @pytest.mark.slow
-@settings(max_examples=int(os.environ.get("MILLVIB_FUZZ_EXAMPLES", "60")), deadline=None,
+@settings(max_examples=examples(60), deadline=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_a_config_file_damaged_anywhere_is_read_whole_or_refused_in_one_line(data, damaged_configs):

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from millvib_env import MillParams, PIDGains
 from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.plant.integrate import simulate, simulate_batch
+from tests._fuzz import examples
 
 #: s: covers the paper's transients and tens of limit-cycle periods (the shortest record that still has a
 #: severity and a motion class; the reference solver costs up to 2 ms of CPU per simulated ms here, and
@@ -128,7 +129,7 @@ def test_bad_arguments_raise(kwargs, match):
         simulate(**kwargs)
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(25), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(c1=st.floats(0.0, 5e6), ct=st.floats(0.0, 1e-8), kp=st.floats(0.0, 1e8), kd=st.floats(0.0, 1e4),
        mt=st.floats(10.0, 1e4), x0=st.floats(-0.01, 0.01), amp=st.floats(0.0, 0.5))
 def test_no_nan_leaves_the_simulator_unflagged(c1, ct, kp, kd, mt, x0, amp):

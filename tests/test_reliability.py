@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 import millvib_env
 from millvib_env.cli import main as cli_main
+from tests._fuzz import examples
 
 WEIRD = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
                   st.floats(allow_nan=True, allow_infinity=True),
@@ -20,7 +21,24 @@ WEIRD = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
                   st.dictionaries(st.text(max_size=5), st.floats(), max_size=2))
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_the_fuzz_profile_lengthens_every_property_based_test(monkeypatch):
+    """`tests._fuzz.examples`: a test's own count in the suite, at least the fuzz profile's under
+    HYPOTHESIS_PROFILE=fuzz (a test's own max_examples would outrank the profile), MILLVIB_FUZZ_EXAMPLES exactly,
+    and a bad count is one line."""
+    monkeypatch.delenv("MILLVIB_FUZZ_EXAMPLES", raising=False)
+    monkeypatch.delenv("HYPOTHESIS_PROFILE", raising=False)
+    assert examples(60) == 60
+    monkeypatch.setenv("HYPOTHESIS_PROFILE", "fuzz")
+    assert examples(60) == settings.get_profile("fuzz").max_examples > 60
+    monkeypatch.setenv("MILLVIB_FUZZ_EXAMPLES", "7")
+    assert examples(60) == 7
+    for bad in ("0", "-3", "x", "1e3"):
+        monkeypatch.setenv("MILLVIB_FUZZ_EXAMPLES", bad)
+        with pytest.raises(ValueError, match=f"MILLVIB_FUZZ_EXAMPLES = '{bad}' is invalid"):
+            examples(60)
+
+
+@settings(max_examples=examples(60), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(key=st.sampled_from(["x0", "params", "scenario", "bogus"]), value=WEIRD)
 def test_fuzzed_reset_options_raise_valueerror_or_give_finite_observations(key, value):
     env = gym.make("MillVib-GainSchedule-v0").unwrapped
@@ -37,7 +55,7 @@ ENV_KWARG_KEYS = ["episode_s", "observe_params", "residual", "reward", "envelope
                   "disturbances", "randomize", "config", "plant", "sample_rate_hz"]
 
 
-@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(80), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(key=st.sampled_from(ENV_KWARG_KEYS), value=WEIRD)
 def test_fuzzed_env_kwargs_raise_valueerror_or_give_finite_rollouts(key, value):
     try:
@@ -123,7 +141,7 @@ FUZZ_FLAGS = {
 
 
 @pytest.mark.slow  # a wide fuzz: 40 CLI runs
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+@settings(max_examples=examples(40), deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(command=st.sampled_from(sorted(FUZZ_FLAGS)), data=st.data())
 def test_fuzzed_cli_arguments_exit_0_or_2_with_one_line(command, data, tmp_path_factory, capsys):
