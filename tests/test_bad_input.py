@@ -87,7 +87,8 @@ OUTPUTS = [
     (["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"], "--log-dir", ""),
 ]
 BAD_PATHS = {"in /proc": "/proc/version/x", "under a file": "a-file/x", "a name over 255 bytes": "x" * 300,
-             "under a long name": "d/" + "y" * 300 + "/z", "the root": "/"}
+             "under a long name": "d/" + "y" * 300 + "/z", "the root": "/",
+             "with a line break, under a file": "a-file/line\nbreak"}  # the path is shown as its repr: one line
 
 
 @pytest.mark.parametrize("kind", sorted(BAD_PATHS))

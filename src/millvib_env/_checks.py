@@ -10,14 +10,21 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["as_float", "shown", "real", "integer", "integers", "choice", "instance", "strings", "reals", "band",
-           "seed_or_none"]
+__all__ = ["as_float", "shown", "shown_path", "real", "integer", "integers", "choice", "instance", "strings", "reals",
+           "band", "seed_or_none"]
 
 
 def shown(value: Any) -> str:
     """A value as an error message shows it: its repr, cut to 60 characters."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def shown_path(path: Any) -> str:
+    """A path as an error message shows it: as it is, or its repr where it holds a line break or another
+    character that does not print, so that the message stays one line."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)
 
 
 def _fail(name: str, value: Any, allowed: str):

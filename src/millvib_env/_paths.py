@@ -11,6 +11,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Collection, Iterator
 
+from millvib_env._checks import shown_path
+
 _REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -125,15 +127,15 @@ def check_result_folder(path: str | os.PathLike | None, flag: str, command: str,
     where = p.resolve()
     cwd = Path.cwd().resolve()
     if _inside(cwd, where):
-        raise ValueError(f"{flag} {path} is the working directory or contains it; a result folder is replaced as a "
-                         "whole: name a new folder (e.g. results/run1)")
+        raise ValueError(f"{flag} {shown_path(path)} is the working directory or contains it; a result folder is "
+                         "replaced as a whole: name a new folder (e.g. results/run1)")
     for other_flag, other in others:
         if other is None:
             continue
         o = Path(other).resolve()
         if _inside(o, where):
-            raise ValueError(f"{other_flag} {other} lies inside {flag} {path}, which is replaced as a whole: "
-                             f"{other_flag} must lie outside it")
+            raise ValueError(f"{other_flag} {shown_path(other)} lies inside {flag} {shown_path(path)}, which is "
+                             f"replaced as a whole: {other_flag} must lie outside it")
     clean_debris(p)
     if not p.is_dir():
         return p
@@ -146,12 +148,12 @@ def check_result_folder(path: str | os.PathLike | None, flag: str, command: str,
         marker = _read_marker(p)
         if marker is None or marker.get("command") != command:
             what = "no millvib result" if marker is None else f"a `millvib {marker.get('command')}` result"
-            raise ValueError(f"{flag} {path} holds {len(entries)} entries and is {what} ({', '.join(entries[:4])}"
-                             f"{', ...' if len(entries) > 4 else ''}); it would be replaced as a whole: name a new "
-                             "or empty folder")
+            raise ValueError(f"{flag} {shown_path(path)} holds {len(entries)} entries and is {what} "
+                             f"({', '.join(entries[:4])}{', ...' if len(entries) > 4 else ''}); it would be replaced "
+                             "as a whole: name a new or empty folder")
         foreign = [e for e in entries if e != RESULT_MARKER and e not in marker.get("entries", [])]
     if foreign:
-        raise ValueError(f"{flag} {path} holds entries this command did not write ({', '.join(foreign[:4])}"
+        raise ValueError(f"{flag} {shown_path(path)} holds entries this command did not write ({', '.join(foreign[:4])}"
                          f"{', ...' if len(foreign) > 4 else ''}); it would be replaced as a whole: move them or "
                          "name a new folder")
     return p
@@ -268,17 +270,18 @@ def check_output(path: str | os.PathLike | None, flag: str, *, folder: bool = Fa
                          "folder name may have at most 255")
     if p.exists():
         if folder and not p.is_dir():
-            raise ValueError(f"{flag} {p}: a file is in the way; a folder is needed")
+            raise ValueError(f"{flag} {shown_path(p)}: a file is in the way; a folder is needed")
         if not folder and p.is_dir():
-            raise ValueError(f"{flag} {p} is a folder; a file path is needed")
+            raise ValueError(f"{flag} {shown_path(p)} is a folder; a file path is needed")
     parent = p if folder and p.exists() else p.parent
     while not parent.exists():
         parent = parent.parent
     if not parent.is_dir():
-        raise ValueError(f"{flag} {p}: {parent} is a file, so the path cannot be created")
+        raise ValueError(f"{flag} {shown_path(p)}: {shown_path(parent)} is a file, so the path cannot be created")
     try:  # really try: as root os.access says yes to /proc and to read-only file systems
         with tempfile.TemporaryFile(dir=parent):
             pass
     except OSError as err:
-        raise ValueError(f"{flag} {p}: {parent} is not writable ({err.strerror or err})") from None
+        raise ValueError(f"{flag} {shown_path(p)}: {shown_path(parent)} is not writable "
+                         f"({err.strerror or err})") from None
     return p

@@ -11,6 +11,8 @@ from typing import Any
 
 import yaml
 
+from millvib_env._checks import shown_path
+
 
 #: the deepest nesting a config file may have (the project's own are at most 5 deep)
 MAX_DEPTH = 32
@@ -129,16 +131,16 @@ def load_yaml(path: str | Path, what: str = "config file", mapping: bool = False
         text = path.read_bytes().decode("utf-8")
         data = copy.deepcopy(_parse(text)) if len(text) <= MAX_CACHED else _parse.__wrapped__(text)
     except ValueError as err:  # includes UnicodeDecodeError
-        raise ValueError(f"{what} {path} cannot be read: {str(err).splitlines()[0]}") from None
+        raise ValueError(f"{what} {shown_path(path)} cannot be read: {str(err).splitlines()[0]}") from None
     except OSError as err:
-        raise ValueError(f"{what} {path} cannot be read: {err.strerror or type(err).__name__}") from None
+        raise ValueError(f"{what} {shown_path(path)} cannot be read: {err.strerror or type(err).__name__}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" (line {mark.line + 1})" if mark is not None else ""
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise ValueError(f"{what} {path} is not valid YAML{where}: {problem}") from None
+        raise ValueError(f"{what} {shown_path(path)} is not valid YAML{where}: {problem}") from None
     except RecursionError:
-        raise ValueError(f"{what} {path} is nested too deeply") from None
+        raise ValueError(f"{what} {shown_path(path)} is nested too deeply") from None
     if mapping and not isinstance(data, dict):
-        raise ValueError(f"{what} {path} must be a mapping (key: value lines), not {type(data).__name__}")
+        raise ValueError(f"{what} {shown_path(path)} must be a mapping (key: value lines), not {type(data).__name__}")
     return data

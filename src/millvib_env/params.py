@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-from millvib_env._checks import as_float, shown
+from millvib_env._checks import as_float, shown, shown_path
 from millvib_env._yaml import load_yaml
 
 from millvib_env._paths import config_dir
@@ -176,12 +176,12 @@ class MillParams:
     def from_yaml(cls, path: str | Path) -> "MillParams":
         data = load_yaml(path, "plant preset") or {}
         if not isinstance(data, dict) or not isinstance(data.get("params", {}), dict):
-            raise ValueError(f"plant preset {path} must map parameter names to numbers (optionally under "
+            raise ValueError(f"plant preset {shown_path(path)} must map parameter names to numbers (optionally under "
                              "'params:'); `millvib params` lists them")
         try:
             return cls.from_dict(data.get("params", data))
         except ValueError as err:
-            raise ValueError(f"plant preset {path}: {err}") from None
+            raise ValueError(f"plant preset {shown_path(path)}: {err}") from None
 
     @classmethod
     def describe(cls) -> list[tuple[str, Any, str, str, str]]:
@@ -270,7 +270,8 @@ def load_preset(name: str = "paper") -> MillParams:
     if not path.suffix:
         path = config_dir() / "plant" / f"{name}.yaml"
         if not path.exists():
-            raise ValueError(f"plant preset {name!r} not found (no file {path}); available: {list_presets()}")
+            raise ValueError(f"plant preset {name!r} not found (no file {shown_path(path)}); available: "
+                             f"{list_presets()}")
     return MillParams.from_yaml(path)
 
 

@@ -43,7 +43,7 @@ from typing import Literal
 import numpy as np
 from scipy import fft as sfft
 
-from millvib_env._checks import as_float, band as checked_band, choice, real, shown
+from millvib_env._checks import as_float, band as checked_band, choice, real, shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
@@ -299,7 +299,7 @@ def _load_severity_config() -> dict:
     path = config_dir() / "severity.yaml"
     data = load_yaml(path, "severity config")  # unreadable, broken, or a !!python tag: one line
     if not isinstance(data, dict):
-        raise ValueError(f"{path} must be a mapping with keys source, band_hz, default_class, zones")
+        raise ValueError(f"{shown_path(path)} must be a mapping with keys source, band_hz, default_class, zones")
     source = data.get("source", "")
     if not isinstance(source, str):
         raise _bad("source", source, "a text naming the standard")

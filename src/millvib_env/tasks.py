@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Callable, Mapping, ParamSpec, TypeVar
 
-from millvib_env._checks import shown
+from millvib_env._checks import shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.actions import GainMap
@@ -106,29 +106,30 @@ def _load() -> dict[str, Task]:
     path = config_dir() / "tasks.yaml"
     data = load_yaml(path, "task file")
     if not isinstance(data, dict) or not data:
-        raise ValueError(f"task file {path} must map task names to {{config, description, seeds}}")
+        raise ValueError(f"task file {shown_path(path)} must map task names to {{config, description, seeds}}")
     tasks: dict[str, Task] = {}
     spans: list[tuple[int, int, str]] = []
     for name, entry in data.items():
         if not isinstance(entry, dict) or not isinstance(entry.get("config"), str):
-            raise ValueError(f"task file {path}: {name}.config must name an environment config")
+            raise ValueError(f"task file {shown_path(path)}: {name}.config must name an environment config")
         seeds = entry.get("seeds")
         if not isinstance(seeds, dict) or set(seeds) != set(SEED_PURPOSES):
-            raise ValueError(f"task file {path}: {name}.seeds must have exactly {list(SEED_PURPOSES)}")
+            raise ValueError(f"task file {shown_path(path)}: {name}.seeds must have exactly {list(SEED_PURPOSES)}")
         ranges = {}
         for purpose in SEED_PURPOSES:
             pair = seeds[purpose]
             if (not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
                                                                        for v in pair) or not 0 <= pair[0] <= pair[1]):
-                raise ValueError(f"task file {path}: {name}.seeds.{purpose} = {pair!r} must be [first, last] "
-                                 "integers, 0 <= first <= last")
+                raise ValueError(f"task file {shown_path(path)}: {name}.seeds.{purpose} = {pair!r} must be [first, "
+                                 "last] integers, 0 <= first <= last")
             ranges[purpose] = range(pair[0], pair[1] + 1)
             spans.append((pair[0], pair[1], f"{name}.{purpose}"))
         tasks[name] = Task(name, entry["config"], str(entry.get("description", "")), ranges)
     spans.sort()
     for (a0, a1, an), (b0, b1, bn) in zip(spans, spans[1:]):
         if b0 <= a1:
-            raise ValueError(f"task file {path}: seed ranges {an} [{a0}, {a1}] and {bn} [{b0}, {b1}] overlap")
+            raise ValueError(f"task file {shown_path(path)}: seed ranges {an} [{a0}, {a1}] and {bn} [{b0}, {b1}] "
+                             "overlap")
     return tasks
 
 

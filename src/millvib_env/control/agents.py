@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env import _jax_cache
-from millvib_env._checks import shown
+from millvib_env._checks import shown, shown_path
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.manifest import verify_agent
@@ -96,19 +96,20 @@ def read_card(path: str | Path) -> dict:
             raise ValueError(f"larger than {MAX_CARD_BYTES // 2**20} MiB")
         card = json.loads(path.read_text(encoding="utf-8"))
     except RecursionError:
-        raise ValueError(f"{path} is not a valid model card: nested too deeply") from None
+        raise ValueError(f"{shown_path(path)} is not a valid model card: nested too deeply") from None
     except OSError as err:
-        raise ValueError(f"{path} cannot be read: {err.strerror or type(err).__name__}") from None
+        raise ValueError(f"{shown_path(path)} cannot be read: {err.strerror or type(err).__name__}") from None
     except ValueError as err:  # JSON and Unicode errors too
-        raise ValueError(f"{path} is not a valid model card: {str(err).splitlines()[0]}") from None
+        raise ValueError(f"{shown_path(path)} is not a valid model card: {str(err).splitlines()[0]}") from None
     if not isinstance(card, dict):
-        raise ValueError(f"{path} is not a valid model card: a JSON object is needed, not {type(card).__name__}")
+        raise ValueError(f"{shown_path(path)} is not a valid model card: a JSON object is needed, not "
+                         f"{type(card).__name__}")
     for key, kind in CARD_TYPES.items():
         if key in card and (not isinstance(card[key], kind) or isinstance(card[key], bool)):
-            raise ValueError(f"{path}: {key} = {shown(card[key])} is invalid: must be a JSON "
+            raise ValueError(f"{shown_path(path)}: {key} = {shown(card[key])} is invalid: must be a JSON "
                              f"{ {str: 'string', dict: 'object', int: 'whole number'}[kind] }")
     if "seed" in card and not 0 <= card["seed"] < 2**31:
-        raise ValueError(f"{path}: seed = {shown(card['seed'])} is invalid: a whole number in [0, 2^31)")
+        raise ValueError(f"{shown_path(path)}: seed = {shown(card['seed'])} is invalid: a whole number in [0, 2^31)")
     return card
 
 
@@ -123,7 +124,7 @@ def checked_card(folder: str | Path) -> dict:
     folder = Path(folder)
     card_path = folder / "card.json"
     if not card_path.exists():
-        raise ValueError(f"{folder} is not an agent folder: no card.json (see agents/README.md)")
+        raise ValueError(f"{shown_path(folder)} is not an agent folder: no card.json (see agents/README.md)")
     card = read_card(card_path)
     if "env_id" not in card or "algo" not in card:
         raise ValueError(f"{card_path} is not a valid model card: it needs at least 'algo' and 'env_id'")
@@ -183,13 +184,14 @@ class AgentPolicy(Controller):
         self.recurrent = algo == "recurrentppo"
         model_path = folder / "model.zip"
         if not model_path.is_file():
-            raise ValueError(f"{model_path} is missing: not a complete agent folder")
+            raise ValueError(f"{shown_path(model_path)} is missing: not a complete agent folder")
         if self.model_format == "sb3":  # torch's (SB3 imported it): a small network acts faster on one thread
             one_torch_thread()
         try:
             self.model = cls.load(model_path, device="cpu")
         except Exception as err:
-            raise ValueError(f"{model_path} cannot be loaded: {type(err).__name__}: {str(err)[:200]}") from None
+            raise ValueError(f"{shown_path(model_path)} cannot be loaded: {type(err).__name__}: "
+                             f"{str(err)[:200]}") from None
         self.obs_stats = None
         normalize = self.card.get("normalize", "None")
         if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from millvib_env._checks import shown_path
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller
 from millvib_env.control.onnx_policy import OnnxPolicy, is_onnx_name
@@ -70,5 +71,6 @@ def _exported(path: str, task: Task | None, seed: int | None) -> OnnxPolicy:
     """An exported agent's graph (`OnnxPolicy`); it holds one training seed, the one exported."""
     policy = OnnxPolicy(path)
     if seed is not None and seed != policy.seed:
-        raise ValueError(f"{path} holds training seed {policy.seed} of agent {policy.agent!r}, not seed {seed}")
+        raise ValueError(f"{shown_path(path)} holds training seed {policy.seed} of agent {policy.agent!r}, not seed "
+                         f"{seed}")
     return _on_task(policy, path, task)

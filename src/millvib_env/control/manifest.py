@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+from millvib_env._checks import shown_path
 from millvib_env._paths import agents_dir, write_text_atomic
 
 __all__ = ["MANIFEST", "AGENT_FILES", "EVAL_CURVE", "write_manifest", "verify_agent"]
@@ -57,11 +58,11 @@ def verify_agent(folder: Path) -> bool:
         entries[name] = digest
     listed = [name for name in entries if name.rsplit("/", 1)[0] == rel]
     if not listed:
-        raise ValueError(f"{folder} is not in {manifest}: regenerate it with `python scripts/agents_manifest.py` "
-                         "after adding an agent")
+        raise ValueError(f"{shown_path(folder)} is not in {manifest}: regenerate it with `python "
+                         "scripts/agents_manifest.py` after adding an agent")
     for name in listed:
         path = root / name
         if not path.is_file() or _sha256(path) != entries[name]:
-            raise ValueError(f"{path} does not match its checksum in {manifest}: the shipped file is missing or "
-                             "changed; restore it (git checkout) or regenerate the manifest for a new agent")
+            raise ValueError(f"{shown_path(path)} does not match its checksum in {manifest}: the shipped file is "
+                             "missing or changed; restore it (git checkout) or regenerate the manifest for a new agent")
     return True

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from millvib_env._checks import shown_path
 from millvib_env._paths import atomic_path
 
 __all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE"]
@@ -49,24 +50,24 @@ def load_obs_stats(path: str | Path, obs_dim: int | None = None) -> ObsStats:
     unreadable or does not match `obs_dim` observations."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"{path} is missing: the agent's observation statistics are needed to run it "
+        raise ValueError(f"{shown_path(path)} is missing: the agent's observation statistics are needed to run it "
                          "(without them it would run on unnormalised observations and act wrongly)")
     try:
         with np.load(path, allow_pickle=False) as data:
             stats = ObsStats(np.asarray(data["mean"], float), np.asarray(data["var"], float), float(data["count"]),
                              float(data["clip_obs"]), float(data["epsilon"]))
     except Exception as err:
-        raise ValueError(f"{path} is not a valid statistics file: {type(err).__name__}: {err}") from None
+        raise ValueError(f"{shown_path(path)} is not a valid statistics file: {type(err).__name__}: {err}") from None
     if stats.mean.ndim != 1 or stats.mean.shape != stats.var.shape or not np.all(np.isfinite(stats.mean)) \
             or not np.all(np.isfinite(stats.var)) or np.any(stats.var < 0):
-        raise ValueError(f"{path}: mean and var must be finite vectors of one length, var >= 0")
+        raise ValueError(f"{shown_path(path)}: mean and var must be finite vectors of one length, var >= 0")
     for name, value in (("clip_obs", stats.clip_obs), ("epsilon", stats.epsilon)):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{path}: {name} = {value!r} is invalid: must be finite and > 0 (VecNormalize's "
-                             "clip_obs and epsilon)")
+            raise ValueError(f"{shown_path(path)}: {name} = {value!r} is invalid: must be finite and > 0 "
+                             "(VecNormalize's clip_obs and epsilon)")
     if not (math.isfinite(stats.count) and stats.count >= 0):
-        raise ValueError(f"{path}: count = {stats.count!r} is invalid: must be finite and >= 0")
+        raise ValueError(f"{shown_path(path)}: count = {stats.count!r} is invalid: must be finite and >= 0")
     if obs_dim is not None and stats.mean.size != obs_dim:
-        raise ValueError(f"{path} holds statistics of {stats.mean.size} observations; the agent's environment "
-                         f"has {obs_dim}")
+        raise ValueError(f"{shown_path(path)} holds statistics of {stats.mean.size} observations; the agent's "
+                         f"environment has {obs_dim}")
     return stats

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from millvib_env._checks import shown
+from millvib_env._checks import shown, shown_path
 from millvib_env.control.agents import AGENT_ENV_KEYS, card_task
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import ENV_IDS, EpisodeBatch
@@ -48,7 +48,7 @@ def _metadata(path: Path, meta: dict) -> tuple[str, int, Task, str, dict, list]:
     """The graph's metadata, checked: (agent, seed, task, env_id, env_kwargs, observation names)."""
     missing = [k for k in _NEEDED if k not in meta]
     if missing:
-        raise ValueError(f"{path}: metadata {missing} missing: not a graph written by `millvib export`")
+        raise ValueError(f"{shown_path(path)}: metadata {missing} missing: not a graph written by `millvib export`")
 
     def parsed(key: str, kind: type):
         try:
@@ -56,7 +56,7 @@ def _metadata(path: Path, meta: dict) -> tuple[str, int, Task, str, dict, list]:
         except ValueError:
             value = None
         if not isinstance(value, kind) or isinstance(value, bool):
-            raise ValueError(f"{path}: metadata {key} = {shown(meta[key])} is invalid: a JSON "
+            raise ValueError(f"{shown_path(path)}: metadata {key} = {shown(meta[key])} is invalid: a JSON "
                              f"{ {dict: 'object', list: 'list', int: 'whole number'}[kind] }")
         return value
 
@@ -65,11 +65,12 @@ def _metadata(path: Path, meta: dict) -> tuple[str, int, Task, str, dict, list]:
     obs_names = parsed("millvib.observation", list)
     env_id = meta["millvib.env_id"]
     if env_id not in ENV_IDS:
-        raise ValueError(f"{path}: metadata millvib.env_id = {shown(env_id)} is invalid: one of {sorted(ENV_IDS)}")
+        raise ValueError(f"{shown_path(path)}: metadata millvib.env_id = {shown(env_id)} is invalid: one of "
+                         f"{sorted(ENV_IDS)}")
     episode_keys = sorted(map(str, set(env_kwargs) - AGENT_ENV_KEYS))
     if episode_keys:
-        raise ValueError(f"{path}: env_kwargs {episode_keys} would change the episode the policy meets; an exported "
-                         f"policy may set only {sorted(AGENT_ENV_KEYS)}")
+        raise ValueError(f"{shown_path(path)}: env_kwargs {episode_keys} would change the episode the policy meets; "
+                         f"an exported policy may set only {sorted(AGENT_ENV_KEYS)}")
     task = card_task({"task": meta["millvib.task"]})  # the task's name enters from the file here
     return meta["millvib.agent"], seed, task, env_id, env_kwargs, obs_names
 
@@ -95,19 +96,19 @@ class OnnxPolicy(Controller):
         try:
             session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as err:  # onnxruntime's own errors (InvalidProtobuf, Fail, ...) have no common base
-            raise ValueError(f"{path} is not an ONNX graph onnxruntime can run: "
+            raise ValueError(f"{shown_path(path)} is not an ONNX graph onnxruntime can run: "
                              f"{str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__}"
                              ) from None
         agent, self.seed, self.task, self.env_id, self.env_kwargs, obs_names = \
             _metadata(path, dict(session.get_modelmeta().custom_metadata_map))
         inputs, outputs = [i.name for i in session.get_inputs()], [o.name for o in session.get_outputs()]
         if inputs != ["observation"] or "action" not in outputs:
-            raise ValueError(f"{path}: the graph takes {inputs} and gives {outputs}; an exported policy takes "
-                             "['observation'] and gives 'action'")
+            raise ValueError(f"{shown_path(path)}: the graph takes {inputs} and gives {outputs}; an exported policy "
+                             "takes ['observation'] and gives 'action'")
         have = list(EpisodeBatch(self.env_id, 1, **self.env_kwargs_for(self.task)).core.obs_names)
         if obs_names != have:
-            raise ValueError(f"{path}: the graph reads the observation {obs_names}, but {self.env_id} gives {have} "
-                             "now: export the agent again with this version")
+            raise ValueError(f"{shown_path(path)}: the graph reads the observation {obs_names}, but {self.env_id} "
+                             f"gives {have} now: export the agent again with this version")
         self.name = path.name
         self.agent = agent
         self.path = path

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from millvib_env._checks import shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
@@ -34,7 +35,7 @@ def load_control_config(task: Task, version: str = "v0") -> dict[str, Any]:
 def _read(task: Task, version: str) -> dict[str, Any]:
     path = control_config_path(task, version)
     if not path.is_file():
-        raise ValueError(f"no tuned baselines for task {task.name!r} in {version}: {path} is missing (run "
+        raise ValueError(f"no tuned baselines for task {task.name!r} in {version}: {shown_path(path)} is missing (run "
                          f"millvib tune --task {task.name} --env-version {version} --write-config)")
     return load_yaml(path, "control config", mapping=True)
 

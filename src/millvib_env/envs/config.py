@@ -15,7 +15,7 @@ from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Any, Callable, Mapping, NoReturn
 
-from millvib_env._checks import as_float, shown
+from millvib_env._checks import as_float, shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.disturbances import DisturbanceSettings
@@ -52,24 +52,23 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
     if not path.suffix:
         path = config_dir() / "env" / f"{name}.yaml"
     if not path.is_file():
-        raise ValueError(f"environment config {str(name)!r} not found (no file {path}); available: "
-                         f"{list_env_configs()} "
-                         "or a path to a .yaml file")
+        raise ValueError(f"environment config {str(name)!r} not found (no file {shown_path(path)}); available: "
+                         f"{list_env_configs()} or a path to a .yaml file")
     if path.resolve() in _seen:
-        raise ValueError(f"environment config {path}: 'inherit' forms a cycle")
+        raise ValueError(f"environment config {shown_path(path)}: 'inherit' forms a cycle")
     data = load_yaml(path, "environment config")
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ValueError(f"environment config {path} must be a mapping of keys, not {type(data).__name__}")
+        raise ValueError(f"environment config {shown_path(path)} must be a mapping of keys, not {type(data).__name__}")
     unknown = set(data) - _TOP_KEYS - {"inherit"}
     if unknown:
-        raise ValueError(f"environment config {path}: unknown key(s) {sorted(unknown, key=repr)}; known: "
+        raise ValueError(f"environment config {shown_path(path)}: unknown key(s) {sorted(unknown, key=repr)}; known: "
                          f"{sorted(_TOP_KEYS | {'inherit'})}")
     parent = data.pop("inherit", None)
     if parent is not None:
         if not isinstance(parent, str):
-            raise ValueError(f"environment config {path}: inherit = {parent!r} must be a config name")
+            raise ValueError(f"environment config {shown_path(path)}: inherit = {parent!r} must be a config name")
         data = _merge(_read(parent, _seen + (path.resolve(),)), data)
     return data
 
@@ -326,7 +325,7 @@ class EnvConfig:
 
 # --- the schema --------------------------------------------------------------------------------
 def _fail(path: str, value: Any, allowed: str) -> NoReturn:
-    raise ValueError(f"env config {path} = {shown(value)} is invalid: {allowed}")
+    raise ValueError(f"env config {shown_path(path)} = {shown(value)} is invalid: {allowed}")
 
 
 def _number(path: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
@@ -402,10 +401,11 @@ def _section(path: str, value: Any, fields: Mapping[str, Callable[[str, Any], An
         _fail(path, value, f"must be a mapping with keys {sorted(fields)}")
     unknown = set(value) - set(fields)
     if unknown:
-        raise ValueError(f"env config {path}: unknown key(s) {sorted(unknown, key=repr)}; known: {sorted(fields)}")
+        raise ValueError(f"env config {shown_path(path)}: unknown key(s) {sorted(unknown, key=repr)}; known: "
+                         f"{sorted(fields)}")
     missing = [k for k in required if k not in value]
     if missing:
-        raise ValueError(f"env config {path}: missing key(s) {missing}")
+        raise ValueError(f"env config {shown_path(path)}: missing key(s) {missing}")
     for key, check in fields.items():
         if key in value:
             check(f"{path}.{key}", value[key])
@@ -590,7 +590,7 @@ def _randomize(data: dict, base: MillParams) -> tuple[Distribution, ...]:
             base.replace(**{name: lo})  # both ends inside MillParams' ranges
             base.replace(**{name: hi})
         except ValueError as err:
-            raise ValueError(f"env config {path}: {err}") from None
+            raise ValueError(f"env config {shown_path(path)}: {err}") from None
         dists.append(Distribution(name, kind, lo, hi))
     return tuple(dists)
 

@@ -26,6 +26,7 @@ from typing import cast
 
 import numpy as np
 
+from millvib_env._checks import shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
 from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
@@ -187,7 +188,7 @@ def _resume_from(cls, folder: Path, venv, normalized: bool, tb: str):
 
     found = _checkpoints(folder)
     if not found:
-        raise ValueError(f"--resume: no checkpoint in {folder}")
+        raise ValueError(f"--resume: no checkpoint in {shown_path(folder)}")
     for model_path, stats_path, steps in found:
         if normalized and not stats_path.is_file():
             print(f"--resume: {model_path.name} has no statistics file {stats_path.name}; trying an earlier "
@@ -203,7 +204,7 @@ def _resume_from(cls, folder: Path, venv, normalized: bool, tb: str):
         if (model_path, stats_path, steps) != found[0]:
             print(f"--resume: continuing from {model_path.name}", file=sys.stderr)
         return model, env, steps
-    raise ValueError(f"--resume: no intact checkpoint in {folder} (every one is unreadable or lacks its "
+    raise ValueError(f"--resume: no intact checkpoint in {shown_path(folder)} (every one is unreadable or lacks its "
                      "statistics file)")
 
 
@@ -455,8 +456,9 @@ def train_from_cli(args) -> int:
             inside_run = Path(dest).resolve().relative_to(Path(args.log_dir).resolve()).parts[:1] \
                 if Path(args.log_dir).resolve() in Path(dest).resolve().parents else ()
             if inside_run and inside_run[0].startswith(f"{args.algo}_"):
-                raise ValueError(f"--save-dir {dest} lies inside the run folder {Path(args.log_dir) / inside_run[0]} "
-                                 "(checkpoints, logs), which it would replace: put it outside --log-dir's run folders")
+                raise ValueError(f"--save-dir {shown_path(dest)} lies inside the run folder "
+                                 f"{Path(args.log_dir) / inside_run[0]} (checkpoints, logs), which it would replace: "
+                                 "put it outside --log-dir's run folders")
     for flag, value in (("--n-timesteps", args.n_timesteps), ("--eval-freq", args.eval_freq),
                         ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq),
                         ("--jobs", args.jobs)):
