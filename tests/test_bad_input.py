@@ -35,7 +35,8 @@ def _one_line_refusal(argv, capsys):
 
 
 # --- the subcommands the older fuzz (test_reliability) leaves out ----------------------------------
-ODD = ["0", "-1", "1", "2.5", "1e9", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "bogus", "pid-paper"]
+ODD = ["0", "-1", "1", "2.5", "1e9", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "bogus", "pid-paper",
+       "line\nbreak"]
 FLAGS = {
     # each base runs in a few seconds when every drawn value is valid
     # reproduce: the numbers alone (its figures are drawn by a test of their own, tests/test_paper.py)

@@ -127,7 +127,8 @@ def _exit_status(argv) -> int:
 
 #: flag values a user may mistype: numbers out of range, not numbers, empty, paths that cannot be written
 BAD_OR_ODD = ["0", "-1", "2", "1e9", "3.5", "nan", "inf", "abc", "", "99999999", "/proc/version/x", "rolling",
-              "change", "pid-paper", "ppo-gain-pf", "x.onnx", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1"]
+              "change", "pid-paper", "ppo-gain-pf", "x.onnx", "c1=abc", "c1=nan", "Ct=-1", "kp=1e99", "bogus=1",
+              "line\nbreak", "a\tb.onnx"]
 FUZZ_FLAGS = {
     # benchmark: a valid draw runs pid-paper on 2 plants; train: --n-timesteps is always invalid, so no run trains
     # benchmark and sweep: their figures are drawn by tests of their own (tests/_figures.py); here, the data only
