@@ -288,7 +288,8 @@ def test_a_preset_with_a_bad_value_names_the_field(field, value, tmp_path):
 
 
 # --- the public API -------------------------------------------------------------------------------
-WRONG = [None, "abc", -1, float("nan"), float("inf"), 10 ** 400, [], {}, True, object(), [1.0, 2.0]]
+WRONG = [None, "abc", -1, float("nan"), float("inf"), 10 ** 400, [], {}, True, object(), [1.0, 2.0], np.float32(1e38),
+         1e-300]
 
 
 #: (call, argument) whose documented default is None, so None is no wrong value there: it runs the benchmark's whole
@@ -319,9 +320,9 @@ def _api_calls():
     quiet = {"progress": False}
     return {
         "simulate": (lambda **k: simulate(**{"params": p, "gains": g, "t_end": 0.02, **k}),
-                     ["params", "gains", "t_end", "x0", "xd", "rtol"]),
+                     ["params", "gains", "t_end", "x0", "xd", "rtol", "u_ext", "dt_out", "y0", "change"]),
         "simulate_batch": (lambda **k: simulate_batch(**{"params": [p], "gains": [g], "t_end": 0.02, **k}),
-                           ["params", "gains", "x0"]),
+                           ["params", "gains", "x0", "y0", "change"]),
         "vibration_severity": (lambda **k: vibration_severity(**{"signal": sig, "fs": 1e4, **k}),
                                ["signal", "fs", "quantity", "band"]),
         "band_levels": (lambda **k: band_levels(**{"signal": sig, "fs": 1e4, **k}), ["band", "low_band", "line_hz"]),
@@ -347,15 +348,16 @@ def _api_calls():
                       ["params", "weights", "xd"]),
         "load_controller": (lambda **k: load_controller(**{"name": "pid-robust", **k}),
                             ["name", "task", "config", "seed"]),
-        "run_episodes": (lambda **k: run_episodes(**{"controller": ctrl, "seeds": [0], **k}), ["controller", "seeds"]),
-        "trace_episode": (lambda **k: trace_episode(**{"controller": ctrl, **k}), ["controller", "seed"]),
+        "run_episodes": (lambda **k: run_episodes(**{"controller": ctrl, "seeds": [0], **k}),
+                         ["controller", "seeds", "env_id", "env_kwargs"]),
+        "trace_episode": (lambda **k: trace_episode(**{"controller": ctrl, **k}), ["controller", "seed", "env_kwargs"]),
         "episode_cost": (lambda **k: episode_cost(**{"severity_mm_s": 1.0, "tracking_rms_um": 1.0, **k}),
                          ["severity_mm_s", "tracking_rms_um", "scales"]),
         "run_benchmark": (lambda **k: run_benchmark(**{"controllers": ["pid-paper"], "episodes": 2,
                                                        "scenarios": False, **quiet, **k}),
                           ["controllers", "episodes", "seed", "task", "reference"]),
         "run_sweep": (lambda **k: run_sweep(**{"controllers": ["pid-paper"], "plants": 2, **quiet, **k}),
-                      ["controllers", "plants", "params", "seed", "task"]),
+                      ["controllers", "plants", "params", "seed", "task", "processes"]),
         "make_vec_env": (lambda **k: make_vec_env(**{"env_id": "MillVib-GainSchedule-v0", "n_envs": 2, **k}),
                          ["env_id", "n_envs", "seed"]),
         "load_preset": (lambda **k: load_preset(**k), ["name"]),

@@ -247,6 +247,10 @@ def band_levels_rows(records: np.ndarray, fs: float, *, quantity: Quantity = "ac
     line_width_hz = real("line_width_hz", line_width_hz, lo=0.0, lo_open=True)
     if line_width_hz < resolution:
         raise ValueError(f"line_width_hz = {line_width_hz} Hz is below the record's resolution {resolution:.3g} Hz")
+    unresolved = lines[(lines > 0) & (lines < resolution)]
+    if unresolved.size:  # harmonics closer than one spectral bin, and band / line_hz of them
+        raise ValueError(f"line_hz = {unresolved[0]:.6g} Hz is invalid: 0 (no line) or at least the record's "
+                         f"resolution {resolution:.3g} Hz")
     freqs, vel = _velocity_spectra(x, fs, quantity, band, _checked_workers(workers))
     on_line = np.zeros(vel.shape, dtype=bool)
     for line in np.unique(lines):

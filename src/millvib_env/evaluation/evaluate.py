@@ -13,9 +13,9 @@ from typing import Any, Sequence, TypedDict, cast
 
 import numpy as np
 
-from millvib_env._checks import instance, integer, integers, real
+from millvib_env._checks import choice, instance, integer, integers, real
 from millvib_env.control.base import Controller
-from millvib_env.envs.batch import EpisodeBatch
+from millvib_env.envs.batch import ENV_IDS, EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
 from millvib_env.plant.model import A_ACC, A_U, IV, IX
 from millvib_env.tasks import Task, takes_task
@@ -97,6 +97,8 @@ def env_kwargs_for(controller: Controller, task: str | Task | None = None, env_k
     """The environment keyword arguments a controller runs with on a task (a name or a `Task`; resolved here, where
     `run_episodes` and `trace_episode` take it) (`Controller.env_kwargs_for`)."""
     assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
+    if env_kwargs is not None:
+        instance("env_kwargs", env_kwargs, dict, "None or a dict of environment keywords")
     return controller.env_kwargs_for(task, env_kwargs)
 
 
@@ -110,7 +112,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     """
     instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
     seeds = integers("seeds", seeds)
-    env_id = env_id or controller.env_id
+    env_id = controller.env_id if env_id is None else choice("env_id", env_id, sorted(ENV_IDS))
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     n = len(seeds)
     venv = EpisodeBatch(env_id, n, **kwargs)

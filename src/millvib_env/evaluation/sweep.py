@@ -63,6 +63,7 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "st
     controllers = strings("controllers", controllers, "controller names")
     params = list(dict.fromkeys(strings("params", params, "parameter names")))
     seed = None if seed is None else integer("seed", seed, lo=0)
+    processes = integer("processes", processes, lo=1, hi=1024)
 
     env_id = env_id_for("gain", env_version)
     randomize = _randomize(t, params, env_version)

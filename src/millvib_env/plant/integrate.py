@@ -216,9 +216,10 @@ def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
         raise ValueError(f"t_end = {shown(t_end)} s is invalid: must be finite and > 0")
     if not (math.isfinite(as_float(dt_out)) and 0 < dt_out <= t_end):
         raise ValueError(f"dt_out = {shown(dt_out)} s is invalid: must be in (0, t_end = {t_end}]")
-    n = int(round(t_end / dt_out)) + 1
+    ratio = as_float(t_end) / as_float(dt_out)  # in float64: a float32 t_end / dt_out can overflow to inf
+    n = int(round(ratio)) + 1 if ratio < MAX_SAMPLES else MAX_SAMPLES + 1
     if n > MAX_SAMPLES:
-        raise ValueError(f"t_end = {t_end!r} s with dt_out = {dt_out!r} s would need {n:.3g} samples per run; "
+        raise ValueError(f"t_end = {t_end!r} s with dt_out = {dt_out!r} s would need {ratio + 1:.3g} samples per run; "
                          f"allowed up to {MAX_SAMPLES:.0e} (at most {MAX_SAMPLES * dt_out:.3g} s at this dt_out)")
     return np.arange(n) * dt_out
 
@@ -276,6 +277,18 @@ def _plants_and_gains(params, gains) -> tuple[list, list]:
     return p_list, g_list
 
 
+def _initial_states(y0, n: int) -> np.ndarray:
+    """The N plants' full initial states: finite, one state (`model.STATES`) for all or one per plant."""
+    allowed = f"{NY} finite numbers ({', '.join(STATE_NAMES)}), or one such row per plant ({n})"
+    try:
+        y = np.asarray(y0, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"y0 = {shown(y0)} is invalid: {allowed}") from None
+    if y.shape not in ((NY,), (1, NY), (n, NY)) or not np.all(np.isfinite(y)):
+        raise ValueError(f"y0 = {shown(y0)} is invalid: {allowed}")
+    return np.ascontiguousarray(np.broadcast_to(y, (n, NY)))
+
+
 def _start_positions(x0, n: int) -> np.ndarray:
     """The N plants' start positions (m): one finite number for all or one per plant."""
     x0a = _as_floats("x0", x0)
@@ -324,7 +337,7 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     gains = PAPER_GAINS if gains is None else instance("gains", gains, PIDGains, "a PIDGains")
     res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
                          ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
-                         y0=None if y0 is None else np.asarray(y0)[None, :], change=change,
+                         y0=None if y0 is None else _initial_states(y0, 1), change=change,
                          ivp_options=ivp_options)
     out = res[0]
     out.info["wall_s"] = res.wall_s
@@ -348,6 +361,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     t_end, dt_out = float(t_end), float(dt_out)
     if not isinstance(pid_on, (bool, np.bool_)):
         raise ValueError(f"pid_on = {pid_on!r:.60} is invalid: True or False")
+    u_ext = real("u_ext", u_ext)  # V
     p_list, g_list = _plants_and_gains(params, gains)
     N = len(p_list)
     XD = _xd_samples(xd, t, N)
@@ -357,11 +371,15 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         _check_stroke(p_list, x0s)  # before the start's pressure balance divides by the chamber's length
         Y0 = np.stack([initial_state(p, x0=float(xx)) for p, xx in zip(p_list, x0s)])
     else:
-        Y0 = np.ascontiguousarray(np.broadcast_to(np.asarray(y0, dtype=np.float64), (N, NY)))
+        Y0 = _initial_states(y0, N)
     changes: list[PlantChange | None] = (list(change) if isinstance(change, (list, tuple))
                                          else [change] * N)  # type: ignore[list-item]
     if len(changes) != N:
         raise ValueError(f"change has {len(changes)} entries for {N} plants")
+    for k, ch in enumerate(changes):
+        if ch is not None and not isinstance(ch, PlantChange):
+            raise ValueError(f"change{'' if change is ch else f'[{k}]'} = {shown(ch)} is invalid: None or a "
+                             "PlantChange (or one per plant)")
     C = np.stack([drive_vector(g, u_ext=u_ext, pid_on=pid_on, pl_ref=float(y[IPL]), change=ch)
                   for g, y, ch in zip(g_list, Y0, changes)])
     _check_stroke(p_list, Y0[:, IX])
