@@ -299,7 +299,12 @@ DEFAULT_NONE = {("run_benchmark", "controllers"), ("run_benchmark", "episodes")}
 
 def _api_calls():
     from millvib_env.analysis.dynamics import classify_motion
-    from millvib_env.analysis.linear import critical_kp, linearize, spectral_abscissa, stability_map
+    from millvib_env.analysis.linear import (critical_kp, jacobian, linearize, operating_point, spectral_abscissa,
+                                             stability_map)
+    from millvib_env.control.agents import agent_seeds
+    from millvib_env.control.tuned import load_control_config
+    from millvib_env.envs.scenarios import get_scenario
+    from millvib_env.evaluation.stats import cvar, iqm, worst
     from millvib_env.control.adaptive import EstimatorSettings
     from millvib_env.control.factory import load_controller
     from millvib_env.control.lqr import LQRWeights, lqr_gains
@@ -361,6 +366,15 @@ def _api_calls():
         "make_vec_env": (lambda **k: make_vec_env(**{"env_id": "MillVib-GainSchedule-v0", "n_envs": 2, **k}),
                          ["env_id", "n_envs", "seed"]),
         "load_preset": (lambda **k: load_preset(**k), ["name"]),
+        "cvar": (lambda **k: cvar(**{"values": [1.0, 2.0], **k}), ["values", "worst_fraction", "axis"]),
+        "iqm": (lambda **k: iqm(**{"values": [1.0, 2.0], **k}), ["values", "axis"]),
+        "worst": (lambda **k: worst(**{"values": [1.0, 2.0], **k}), ["values", "axis"]),
+        "get_scenario": (lambda **k: get_scenario(**k), ["name"]),
+        "jacobian": (lambda **k: jacobian(**{"params": p, "gains": g, "op": operating_point(p, g), **k}),
+                     ["params", "gains", "op"]),
+        "LQRWeights": (lambda **k: LQRWeights(**k), ["q_x", "q_v", "q_p", "q_i", "r", "friction"]),
+        "load_control_config": (lambda **k: load_control_config(**{"task": "rolling", **k}), ["task", "version"]),
+        "agent_seeds": (lambda **k: agent_seeds(**k), ["name"]),
         "parse_overrides": (lambda **k: parse_overrides(**k), ["items"]),
     }
 

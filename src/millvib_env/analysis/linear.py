@@ -274,6 +274,8 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
     bristle state z is eliminated: when stuck it moves with x (folded into x), when sliding its
     row vanishes (saturated bristles).
     """
+    _check_plant(params, gains)
+    instance("op", op, OperatingPoint, "an OperatingPoint (operating_point(params, gains))")
     J = _numerical_jacobian(_mean_pack(params), drive_vector(gains, xd=op.xd), op.y, state_scale(params),
                             op.friction)
     keep = [i for i in range(NY)

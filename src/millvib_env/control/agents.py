@@ -332,6 +332,11 @@ def agent_folder(name: str) -> Path:
     """The folder of an agent given by name (a shipped agent under agents/: always that one, even where
     a folder of the same name lies in the working directory) or by path; ValueError if there is none.
     A shipped agent that is a symbolic link is refused: the manifest covers real folders only."""
+    if isinstance(name, Path):
+        name = str(name)
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"agent = {shown(name)} is invalid: a shipped agent's name {list_agents()} or an agent "
+                         "folder's path")
     shipped = agents_dir() / name
     if "/" not in name and "\\" not in name and name not in (".", "..") and shipped.is_dir():
         if shipped.is_symlink() or any(p.is_symlink() for p in shipped.iterdir()):

@@ -48,8 +48,7 @@ class LQRWeights:
     def __post_init__(self) -> None:
         for name in ("q_x", "q_v", "q_p", "q_i", "r"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise ValueError(f"LQRWeights.{name} = {value!r} is invalid: a finite number >= 0")
+            real(f"LQRWeights.{name}", value, lo=0.0)
         if self.r <= 0:
             raise ValueError(f"LQRWeights.r = {self.r!r} is invalid: must be > 0")
         if self.friction not in ("stick", "sliding"):

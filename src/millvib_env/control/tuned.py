@@ -9,12 +9,12 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._checks import shown_path
+from millvib_env._checks import choice, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
-from millvib_env.envs.config import checked_gains
-from millvib_env.tasks import Task, get_task
+from millvib_env.envs.config import ENV_VERSIONS, checked_gains
+from millvib_env.tasks import Task, get_task, takes_task
 
 __all__ = ["control_config_path", "load_control_config", "control_entry", "shared_from", "entry_gains",
            "oracle_table"]
@@ -27,9 +27,11 @@ def control_config_path(task: Task, version: str = "v0") -> Path:
     return (folder if version == "v0" else folder / version) / f"{task.name}.yaml"
 
 
-def load_control_config(task: Task, version: str = "v0") -> dict[str, Any]:
+@takes_task()
+def load_control_config(task: str | Task, version: str = "v0") -> dict[str, Any]:
     """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
-    return _read(task, version)
+    assert isinstance(task, Task)  # a name was resolved by @takes_task
+    return _read(task, choice("version", version, ENV_VERSIONS))
 
 
 def _read(task: Task, version: str) -> dict[str, Any]:

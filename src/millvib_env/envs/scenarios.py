@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from millvib_env._checks import shown
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant.integrate import simulate
 
@@ -83,8 +84,8 @@ def list_scenarios() -> list[str]:
 
 
 def get_scenario(name: str) -> Scenario:
-    if name not in SCENARIOS:
-        raise ValueError(f"scenario {name!r} unknown; available: {list_scenarios()}")
+    if not isinstance(name, str) or name not in SCENARIOS:
+        raise ValueError(f"scenario {shown(name)} unknown; available: {list_scenarios()}")
     return SCENARIOS[name]
 
 

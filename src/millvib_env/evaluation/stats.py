@@ -21,6 +21,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from millvib_env._checks import integer, real, shown
+
 __all__ = ["cvar", "iqm", "worst", "METRICS", "BOOTSTRAP", "BOOTSTRAP_SEED", "interval", "paired_difference",
            "normalized_score"]
 
@@ -29,9 +31,23 @@ BOOTSTRAP = {"n_resamples": 2000, "confidence_level": 0.95}
 BOOTSTRAP_SEED = 12345
 
 
+def _values(values, axis: int) -> np.ndarray:
+    """`values` as floats with at least one along `axis`: an episode's cost may be inf (a diverged one whose
+    record was not finite), never NaN, so a NaN or an empty sample is refused rather than giving a NaN."""
+    try:
+        v = np.asarray(values, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        v = np.empty(0)
+    if v.ndim == 0 or v.size == 0 or np.isnan(v).any():
+        raise ValueError(f"values = {shown(values)} is invalid: numbers, at least one (inf allowed, NaN not)")
+    integer("axis", axis, lo=-v.ndim, hi=v.ndim - 1)
+    return v
+
+
 def cvar(values, worst_fraction: float = 0.2, axis: int = -1):
     """Mean of the worst (largest) `worst_fraction` of the values (at least one), along `axis`."""
-    v = -np.sort(-np.asarray(values, float), axis=axis)
+    worst_fraction = real("worst_fraction", worst_fraction, lo=0.0, lo_open=True, hi=1.0)
+    v = -np.sort(-_values(values, axis), axis=axis)
     k = max(1, int(math.ceil(worst_fraction * v.shape[axis])))
     out = np.mean(np.take(v, np.arange(k), axis=axis), axis=axis)
     return float(out) if np.ndim(out) == 0 else out
@@ -41,17 +57,17 @@ def iqm(values, axis: int = -1):
     """Interquartile mean: the mean of the middle 50 % (scipy.stats.trim_mean, 25 % cut each side)."""
     from scipy import stats
 
-    out = stats.trim_mean(np.asarray(values, float), 0.25, axis=axis)
+    out = stats.trim_mean(_values(values, axis), 0.25, axis=axis)
     return float(out) if np.ndim(out) == 0 else out
 
 
 def worst(values, axis: int = -1):
-    out = np.max(np.asarray(values, float), axis=axis)
+    out = np.max(_values(values, axis), axis=axis)
     return float(out) if np.ndim(out) == 0 else out
 
 
 def _mean(values, axis: int = -1):
-    out = np.mean(np.asarray(values, float), axis=axis)
+    out = np.mean(_values(values, axis), axis=axis)
     return float(out) if np.ndim(out) == 0 else out
 
 
