@@ -150,7 +150,8 @@ def test_native_vec_env_equals_dummy_vec_env_over_single_envs(env_id, kwargs):
     assert done_seen >= 2 * n
 
 
-@pytest.mark.parametrize("bad", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0]), np.zeros(2), np.zeros((2, 3))])
+@pytest.mark.parametrize("bad", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0]), np.zeros(2), np.zeros((2, 3)),
+                                 [10 ** 400, 0, 0], "abc"])  # an integer beyond a float: found by a fuzz
 def test_bad_actions_raise_clear_errors(bad):
     env = gym.make("MillVib-GainSchedule-v0")
     env.reset(seed=0)

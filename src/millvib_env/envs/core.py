@@ -267,7 +267,7 @@ class MillVibCore:
     def check_actions(self, actions: Any) -> np.ndarray:
         try:
             a = np.asarray(actions, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
             raise ValueError(f"action = {actions!r} is invalid: numbers in [-1, 1] of shape ({self.act_dim},)") \
                 from None
         if a.shape == (self.act_dim,) and self.n == 1:
