@@ -71,6 +71,35 @@ def test_fuzzed_env_kwargs_raise_valueerror_or_give_finite_rollouts(key, value):
         assert np.all(np.isfinite(obs)) and np.all(np.isfinite(rew))
 
 
+#: an action as a client might send it by mistake: any number (an integer beyond a float's too), a string, None, a
+#: list of them of any length, or an array of any shape
+ACTION = st.one_of(WEIRD, st.just(10 ** 400),
+                   st.lists(st.one_of(st.floats(allow_nan=True), st.integers(-10 ** 400, 10 ** 400)), max_size=4),
+                   st.builds(lambda r, c, v: np.full((r, c), v), st.integers(0, 3), st.integers(0, 4),
+                             st.floats(-1e3, 1e3)))
+_ACTION_ENVS: dict = {}
+
+
+@settings(max_examples=examples(60), deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(env_id=st.sampled_from(["MillVib-GainSchedule-v1", "MillVib-Valve-v1", "MillVib-Valve-v0"]), action=ACTION)
+@example(env_id="MillVib-Valve-v1", action=[10 ** 400])  # found by a fuzz: it ended in an OverflowError
+def test_fuzzed_actions_raise_valueerror_or_give_finite_steps(env_id, action):
+    """Whatever a client sends as an action: a finite step (an action of the right shape, clipped to the box) or
+    a ValueError of one line, and the episode goes on after it."""
+    env = _ACTION_ENVS.get(env_id)
+    if env is None:
+        env = _ACTION_ENVS[env_id] = gym.make(env_id)
+        env.reset(seed=0)
+    try:
+        obs, reward, terminated, truncated, _ = env.step(action)
+    except ValueError as err:
+        assert "\n" not in str(err)
+        obs, reward, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+    assert np.all(np.isfinite(obs)) and math.isfinite(reward)
+    if terminated or truncated:
+        env.reset(seed=0)
+
+
 def test_nan_and_string_booleans_are_refused():
     with pytest.raises(ValueError, match="x0"):
         gym.make("MillVib-GainSchedule-v0").reset(options={"x0": float("nan")})
