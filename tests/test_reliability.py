@@ -100,6 +100,19 @@ def test_fuzzed_actions_raise_valueerror_or_give_finite_steps(env_id, action):
         env.reset(seed=0)
 
 
+def test_a_refused_array_is_shown_on_one_line():
+    """An error names the value it refuses by its repr, and numpy breaks an array's repr over lines: a user's hook
+    given as an array, or returning one, is still refused in one line (found by a fuzz of the hooks)."""
+    grid = np.ones((2, 2))
+    for kwargs in ({"reward_fn": grid}, {"envelope_fn": grid}, {"base_controller": grid},
+                   {"extra_disturbances": grid}, {"reward_fn": lambda terms: grid}):
+        with pytest.raises(ValueError) as err:
+            env = gym.make("MillVib-GainSchedule-v1", **kwargs)
+            env.reset(seed=0)
+            env.step(np.zeros(env.action_space.shape))
+        assert "\n" not in str(err.value) and "array([[1., 1.], [1., 1.]])" in str(err.value), (kwargs, err.value)
+
+
 def test_nan_and_string_booleans_are_refused():
     with pytest.raises(ValueError, match="x0"):
         gym.make("MillVib-GainSchedule-v0").reset(options={"x0": float("nan")})

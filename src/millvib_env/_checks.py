@@ -6,6 +6,7 @@ NaN). The functions return the value converted (a float, an int, a list), so a c
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, Sequence
 
 import numpy as np
@@ -15,8 +16,9 @@ __all__ = ["as_float", "shown", "shown_path", "real", "integer", "integers", "ch
 
 
 def shown(value: Any) -> str:
-    """A value as an error message shows it: its repr, cut to 60 characters."""
-    text = repr(value)
+    """A value as an error message shows it: its repr on one line (an array's repr breaks its rows over lines),
+    cut to 60 characters."""
+    text = re.sub(r"\s*\n\s*", " ", repr(value))
     return text if len(text) <= 60 else text[:57] + "..."
 
 

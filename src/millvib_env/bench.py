@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from millvib_env._checks import integer
+from millvib_env._checks import integer, shown
 from millvib_env._paths import write_text_atomic
 from millvib_env.analysis.paper import PAPER_STUDIES
 from millvib_env.params import MillParams, PIDGains, studied_range
@@ -62,9 +62,9 @@ def bench_plant(*, t_end: float = 1.0, repeats: int = 5, batch_size: int = 256, 
                 progress: bool = True) -> dict:
     lo, hi = T_END_RANGE
     if isinstance(t_end, bool) or not isinstance(t_end, (int, float)) or not lo <= t_end <= hi:
-        raise ValueError(f"t_end = {t_end!r} s is invalid: a simulated time per case in [{lo}, {hi}] s")
+        raise ValueError(f"t_end = {shown(t_end)} s is invalid: a simulated time per case in [{lo}, {hi}] s")
     if isinstance(repeats, bool) or not isinstance(repeats, int) or not 1 <= repeats <= MAX_REPEATS:
-        raise ValueError(f"repeats = {repeats!r} is invalid: a whole number in [1, {MAX_REPEATS}]")
+        raise ValueError(f"repeats = {shown(repeats)} is invalid: a whole number in [1, {MAX_REPEATS}]")
     batch_size = integer("batch_size", batch_size, lo=BATCH_RANGE[0], hi=BATCH_RANGE[1])
     simulate(t_end=0.01)  # compile or load the kernels outside the timings
     simulate(t_end=0.01, method="reference")

@@ -200,7 +200,7 @@ def _as_float(name: str, value: Any) -> float:
         try:
             return float(value)
         except ValueError:
-            raise ValueError(f"{name} = {value!r} is not a number") from None
+            raise ValueError(f"{name} = {shown(value)} is not a number") from None
     return value
 
 
@@ -254,7 +254,7 @@ def studied_range(name: str) -> tuple[float, float]:
     for f in dataclasses.fields(MillParams):
         if f.name == name and "studied" in f.metadata:
             return tuple(f.metadata["studied"])
-    raise ValueError(f"parameter {name!r} has no studied range; those with one: c1, Ct")
+    raise ValueError(f"parameter {shown(name)} has no studied range; those with one: c1, Ct")
 
 
 def list_presets() -> list[str]:
@@ -265,12 +265,12 @@ def list_presets() -> list[str]:
 def load_preset(name: str = "paper") -> MillParams:
     """Load `configs/plant/<name>.yaml` (or a path to a YAML file) as MillParams."""
     if not isinstance(name, (str, Path)) or not str(name):
-        raise ValueError(f"preset = {name!r:.60} is invalid: a preset name {list_presets()} or a YAML path")
+        raise ValueError(f"preset = {shown(name)} is invalid: a preset name {list_presets()} or a YAML path")
     path = Path(name)
     if not path.suffix:
         path = config_dir() / "plant" / f"{name}.yaml"
         if not path.exists():
-            raise ValueError(f"plant preset {name!r} not found (no file {shown_path(path)}); available: "
+            raise ValueError(f"plant preset {shown(name)} not found (no file {shown_path(path)}); available: "
                              f"{list_presets()}")
     return MillParams.from_yaml(path)
 
@@ -279,10 +279,10 @@ def parse_overrides(items: list[str] | None) -> dict[str, float]:
     """Parse CLI overrides like ["c1=2.25e5", "Ct=5e-9"] into a dict of floats."""
     out: dict[str, float] = {}
     if items is not None and (isinstance(items, str) or not isinstance(items, (list, tuple))):
-        raise ValueError(f"overrides = {items!r:.60} is invalid: a list of NAME=VALUE strings")
+        raise ValueError(f"overrides = {shown(items)} is invalid: a list of NAME=VALUE strings")
     for item in items or []:
         if not isinstance(item, str) or "=" not in item:
-            raise ValueError(f"override {item!r} must look like NAME=VALUE (e.g. c1=2.25e5)")
+            raise ValueError(f"override {shown(item)} must look like NAME=VALUE (e.g. c1=2.25e5)")
         key, _, value = item.partition("=")
         out[key.strip()] = _as_float(key.strip(), value.strip())
     return out

@@ -100,7 +100,7 @@ def _band_for_record(n: int, fs: float, band: tuple[float, float] | None, band_n
         raise ValueError(f"record of {n} samples ({duration:.4g} s at {fs:g} Hz) is too short for the band's "
                          f"low edge {lo:g} Hz: at least one period, {1.0 / lo:.4g} s, is needed")
     if hi - lo < 1.0 / duration:
-        raise ValueError(f"band = {band!r} Hz is narrower than the record's frequency resolution allows: a "
+        raise ValueError(f"band = {shown(band)} Hz is narrower than the record's frequency resolution allows: a "
                          f"{duration:.4g} s record needs a band at least {1.0 / duration:.4g} Hz wide")
     return lo, hi
 
@@ -339,7 +339,7 @@ def iso_table(name: str | None = None) -> IsoZoneTable:
     default, _, tables = _load_iso_tables()
     key = default if name is None else choice("machine_class", name, sorted(tables))
     if key not in tables:
-        raise ValueError(f"ISO machine class {key!r} unknown; available: {sorted(tables)}")
+        raise ValueError(f"ISO machine class {shown(key)} unknown; available: {sorted(tables)}")
     return tables[key]
 
 

@@ -67,7 +67,7 @@ class Task:
 
     def _check_training_seed(self, seed: int) -> None:
         if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_TRAINING_SEED:
-            raise ValueError(f"training seed {seed!r} is invalid: an integer in [0, {MAX_TRAINING_SEED}]")
+            raise ValueError(f"training seed {shown(seed)} is invalid: an integer in [0, {MAX_TRAINING_SEED}]")
 
     def purpose_of(self, seed: int) -> str | None:
         for purpose, rng in self.seeds.items():
@@ -82,10 +82,11 @@ class Task:
 
         rng_ = self.seeds["heldout"]
         if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= len(rng_):
-            raise ValueError(f"episodes {shown(n)} is invalid: a whole number in [1, {len(rng_)}] (task {self.name!r} "
-                             f"has {len(rng_)} held-out plants)")
+            raise ValueError(f"episodes {shown(n)} is invalid: a whole number in [1, {len(rng_)}] (task "
+                             f"{shown(self.name)} has {len(rng_)} held-out plants)")
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ValueError(f"seed {seed!r} is invalid: a whole number >= 0 (it seeds the draw of held-out plants)")
+            raise ValueError(f"seed {shown(seed)} is invalid: a whole number >= 0 (it seeds the draw of held-out "
+                             "plants)")
         picks = np.random.default_rng(seed).choice(len(rng_), size=n, replace=False)
         plants = sorted(rng_.start + int(i) for i in picks)
         self.check_heldout(plants)
@@ -97,7 +98,7 @@ class Task:
         bad = [s for s in seeds if s not in rng]
         if bad:
             where = self.purpose_of(bad[0]) or "no declared range"
-            raise ValueError(f"seed {bad[0]} is not a held-out plant of task {self.name!r} (it falls in {where}); "
+            raise ValueError(f"seed {bad[0]} is not a held-out plant of task {shown(self.name)} (it falls in {where}); "
                              f"held-out seeds are {rng.start}-{rng.stop - 1} (configs/tasks.yaml)")
 
 
@@ -120,8 +121,8 @@ def _load() -> dict[str, Task]:
             pair = seeds[purpose]
             if (not isinstance(pair, list) or len(pair) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
                                                                        for v in pair) or not 0 <= pair[0] <= pair[1]):
-                raise ValueError(f"task file {shown_path(path)}: {name}.seeds.{purpose} = {pair!r} must be [first, "
-                                 "last] integers, 0 <= first <= last")
+                raise ValueError(f"task file {shown_path(path)}: {name}.seeds.{purpose} = {shown(pair)} must be "
+                                 "[first, last] integers, 0 <= first <= last")
             ranges[purpose] = range(pair[0], pair[1] + 1)
             spans.append((pair[0], pair[1], f"{name}.{purpose}"))
         tasks[name] = Task(name, entry["config"], str(entry.get("description", "")), ranges)
@@ -148,11 +149,11 @@ def get_task(name: str | Task) -> Task:
     if isinstance(name, Task):
         return name
     if not isinstance(name, str):
-        raise ValueError(f"task = {name!r} is invalid: one of {list_tasks()}")
+        raise ValueError(f"task = {shown(name)} is invalid: one of {list_tasks()}")
     name = TASK_ALIASES.get(name, name)
     tasks = _load()
     if name not in tasks:
-        raise ValueError(f"task {name!r} unknown; available: {list(tasks)}")
+        raise ValueError(f"task {shown(name)} unknown; available: {list(tasks)}")
     return tasks[name]
 
 
@@ -175,7 +176,7 @@ def takes_task(*params: str) -> Callable[[Callable[P, R]], Callable[P, R]]:
         sig = inspect.signature(fn)
         missing = [n for n in names if n not in sig.parameters]
         if missing:
-            raise TypeError(f"{fn.__qualname__} has no parameter {missing[0]!r} to take a task")
+            raise TypeError(f"{fn.__qualname__} has no parameter {shown(missing[0])} to take a task")
         optional = {n for n in names if sig.parameters[n].default is None}
 
         @functools.wraps(fn)

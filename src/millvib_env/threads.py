@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import os
 
+from millvib_env._checks import shown
+
 __all__ = ["MIN_PARALLEL", "use_threads", "numba_threads", "configured_threads", "set_num_threads", "serial_unless_set",
            "THREADS_ENV", "passive_waiting", "one_blas_thread",
            "one_xla_thread", "XLA_ONE_THREAD", "one_torch_thread"]
@@ -97,9 +99,9 @@ def configured_threads() -> int | None:
     try:
         value = int(raw)
     except ValueError:
-        raise ValueError(f"{THREADS_ENV} = {raw!r} is invalid: an integer >= 1") from None
+        raise ValueError(f"{THREADS_ENV} = {shown(raw)} is invalid: an integer >= 1") from None
     if value < 1:
-        raise ValueError(f"{THREADS_ENV} = {raw!r} is invalid: an integer >= 1")
+        raise ValueError(f"{THREADS_ENV} = {shown(raw)} is invalid: an integer >= 1")
     return value
 
 
@@ -107,7 +109,7 @@ def set_num_threads(n: int | None) -> None:
     """Set the knob from code (None: back to MILLVIB_NUM_THREADS / numba's default)."""
     global _override
     if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
-        raise ValueError(f"threads = {n!r} is invalid: an integer >= 1 or None")
+        raise ValueError(f"threads = {shown(n)} is invalid: an integer >= 1 or None")
     _override = n
 
 

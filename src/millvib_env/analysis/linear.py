@@ -33,7 +33,7 @@ from typing import Literal, Sequence
 import numpy as np
 from numba import njit
 
-from millvib_env._checks import instance, integer, real, reals
+from millvib_env._checks import instance, integer, real, reals, shown
 from millvib_env.distributed import run_jobs
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.kernel import rhs_vector
@@ -219,9 +219,9 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     _check_plant(params, gains)
     xd = _check_xd(params, xd)
     if friction not in ("stick", "sliding"):
-        raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
+        raise ValueError(f"friction = {shown(friction)} is invalid: use 'stick' or 'sliding'")
     if integral not in ("frozen", "settled"):
-        raise ValueError(f"integral = {integral!r} is invalid: use 'frozen' or 'settled'")
+        raise ValueError(f"integral = {shown(integral)} is invalid: use 'frozen' or 'settled'")
     p_mean = _mean_pack(_ideal(params))  # at rest the spool sits at its command
     c = drive_vector(gains, xd=xd)
     y = np.zeros(NY)
@@ -343,7 +343,7 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
     _check_plant(params)
     xd = _check_xd(params, xd)
     if friction not in ("stick", "sliding"):
-        raise ValueError(f"friction = {friction!r} is invalid: use 'stick' or 'sliding'")
+        raise ValueError(f"friction = {shown(friction)} is invalid: use 'stick' or 'sliding'")
     mean = params.replace(pulse_amp=0.0)
     y0 = settled_state(mean, xd=xd, z=params.fs / params.sigma0 if friction == "sliding" else 0.0)
     u0 = float(y0[IUI])

@@ -49,9 +49,9 @@ def algo_class(algo: str, backend: str = "sb3"):
     """The learner class of an algorithm name for a backend (SB3, sb3-contrib or sbx); imported only
     when asked for."""
     if backend not in BACKENDS:
-        raise ValueError(f"backend = {backend!r} is invalid: one of {sorted(BACKENDS)}")
+        raise ValueError(f"backend = {shown(backend)} is invalid: one of {sorted(BACKENDS)}")
     if algo not in BACKENDS[backend]:
-        raise ValueError(f"algo = {algo!r} is invalid for backend {backend!r}: one of {BACKENDS[backend]}")
+        raise ValueError(f"algo = {shown(algo)} is invalid for backend {shown(backend)}: one of {BACKENDS[backend]}")
     if backend == "sbx":
 
         one_xla_thread()  # before JAX starts (training or loading): its thread pool would take every core
@@ -135,10 +135,10 @@ def checked_card(folder: str | Path) -> dict:
                          f"plants, disturbances or start); a card may set only {sorted(AGENT_ENV_KEYS)}, so that "
                          "every controller of a task meets the same plants")
     if "config" in env_kwargs and env_kwargs["config"] != card_task(card).config:
-        raise ValueError(f"{card_path}: env_kwargs config {env_kwargs['config']!r} is not its task's")
+        raise ValueError(f"{card_path}: env_kwargs config {shown(env_kwargs['config'])} is not its task's")
     algo = str(card["algo"]).lower()
     if algo not in ALGOS:
-        raise ValueError(f"unknown algo {algo!r} in {card_path}: one of {ALGOS}")
+        raise ValueError(f"unknown algo {shown(algo)} in {card_path}: one of {ALGOS}")
     if str(card.get("backend", "sb3")) not in BACKENDS:
         raise ValueError(f"unknown backend {card.get('backend')!r} in {card_path}: one of {sorted(BACKENDS)}")
     return card
@@ -196,7 +196,7 @@ class AgentPolicy(Controller):
         normalize = self.card.get("normalize", "None")
         if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \
                 not normalize.strip().startswith(("{", "dict(")):
-            raise ValueError(f"{card_path}: normalize = {normalize!r} is invalid: 'None' or the VecNormalize "
+            raise ValueError(f"{card_path}: normalize = {shown(normalize)} is invalid: 'None' or the VecNormalize "
                              "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
         if normalize.strip() not in ("None", "False", "", "{}"):
 
@@ -346,7 +346,7 @@ def agent_folder(name: str) -> Path:
     else:
         path = Path(name)
     if not path.is_dir() or not agent_seed_folders(path):
-        raise ValueError(f"controller {name!r} unknown: use one of {baseline_names()}, a shipped agent "
+        raise ValueError(f"controller {shown(name)} unknown: use one of {baseline_names()}, a shipped agent "
                          f"{list_agents()}, an agent folder path (a folder with card.json, or seed-<s>/ "
                          "folders that have one) or an exported agent's FILE.onnx (millvib export)")
     return path

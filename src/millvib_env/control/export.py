@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._checks import integer
+from millvib_env._checks import integer, shown
 from millvib_env._paths import atomic_path
 from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
 from millvib_env.control.factory import load_controller
@@ -137,10 +137,10 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
     onnx, ort = _modules()
     agent = load_controller(name, seed=seed, version="v1")
     if not isinstance(agent, AgentPolicy):
-        raise ValueError(f"{name!r} is a baseline, not a trained agent: export takes an agent name or folder")
+        raise ValueError(f"{shown(name)} is a baseline, not a trained agent: export takes an agent name or folder")
     algo = str(agent.card["algo"]).lower()
     if agent.recurrent or algo not in ("ppo", "sac") or (agent.model_format != "sb3" and algo != "sac"):
-        raise ValueError(f"agent {agent.name!r} ({algo}, {agent.backend}) cannot be exported: export covers SB3's "
+        raise ValueError(f"agent {shown(agent.name)} ({algo}, {agent.backend}) cannot be exported: export covers SB3's "
                          "PPO and SAC and sbx's SAC (a recurrent policy's state and sbx's PPO need another path)")
     obs, core = _episode_observations(agent, check_steps)
     module = _deployed(agent)

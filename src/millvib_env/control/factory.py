@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from millvib_env._checks import shown_path
+from millvib_env._checks import shown_path, shown
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller
 from millvib_env.control.onnx_policy import OnnxPolicy, is_onnx_name
@@ -33,22 +33,22 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
     than the one asked for is refused. A baseline runs in environment version `version` with the gains
     tuned for it (`control_config_path`); an agent runs in the version it was trained in."""
     if version not in ENV_VERSIONS:
-        raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
+        raise ValueError(f"version = {shown(version)} is invalid: one of {list(ENV_VERSIONS)}")
     if not isinstance(name, str) or not name:
-        raise ValueError(f"controller {name!r} is invalid: a baseline {baseline_names()} or an agent name or path")
+        raise ValueError(f"controller {shown(name)} is invalid: a baseline {baseline_names()} or an agent name or path")
     if config is not None and not isinstance(config, EnvConfig):
-        raise ValueError(f"config = {config!r:.60} is invalid: None or an EnvConfig (envs.config.load_env_config)")
+        raise ValueError(f"config = {shown(config)} is invalid: None or an EnvConfig (envs.config.load_env_config)")
     assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task; None: an agent's own task
     if name not in REGISTRY:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
-            raise ValueError(f"seed = {seed!r} is invalid: a training seed (an integer) or None for the lowest")
+            raise ValueError(f"seed = {shown(seed)} is invalid: a training seed (an integer) or None for the lowest")
         if is_onnx_name(name):
             return _exported(name, task, seed)
         seeds = agent_seed_folders(agent_folder(name))
         if seed is None:
             seed = next(iter(seeds))
         if seed not in seeds:
-            raise ValueError(f"agent {name!r} has no training seed {seed}: it ships seeds {list(seeds)}")
+            raise ValueError(f"agent {shown(name)} has no training seed {seed}: it ships seeds {list(seeds)}")
         return _on_task(AgentPolicy(seeds[seed]), name, task)
     t = task if task is not None else default_task()  # a baseline named without a task: startup
     gain_map = GainMap.from_config(config if config is not None else t.configs["v0"])
@@ -62,8 +62,8 @@ def load_controller(name: str, task: str | Task | None = None, config: EnvConfig
 def _on_task(agent: AgentPolicy | OnnxPolicy, name: str, task: Task | None):
     """`agent`, where `task` is None or the one it was trained on."""
     if task is not None and task.name != agent.task.name:
-        raise ValueError(f"agent {name!r} was trained on task {agent.task.name!r}, not {task.name!r}: "
-                         f"run it with task {agent.task.name!r}")
+        raise ValueError(f"agent {shown(name)} was trained on task {shown(agent.task.name)}, not {shown(task.name)}: "
+                         f"run it with task {shown(agent.task.name)}")
     return agent
 
 
@@ -71,6 +71,6 @@ def _exported(path: str, task: Task | None, seed: int | None) -> OnnxPolicy:
     """An exported agent's graph (`OnnxPolicy`); it holds one training seed, the one exported."""
     policy = OnnxPolicy(path)
     if seed is not None and seed != policy.seed:
-        raise ValueError(f"{shown_path(path)} holds training seed {policy.seed} of agent {policy.agent!r}, not seed "
-                         f"{seed}")
+        raise ValueError(f"{shown_path(path)} holds training seed {policy.seed} of agent {shown(policy.agent)}, not "
+                         f"seed {seed}")
     return _on_task(policy, path, task)

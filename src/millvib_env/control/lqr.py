@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from millvib_env._checks import instance, real
+from millvib_env._checks import instance, real, shown
 from millvib_env.analysis.linear import Friction, linearize
 from millvib_env.threads import one_blas_thread
 from millvib_env.params import MillParams
@@ -50,9 +50,9 @@ class LQRWeights:
             value = getattr(self, name)
             real(f"LQRWeights.{name}", value, lo=0.0)
         if self.r <= 0:
-            raise ValueError(f"LQRWeights.r = {self.r!r} is invalid: must be > 0")
+            raise ValueError(f"LQRWeights.r = {shown(self.r)} is invalid: must be > 0")
         if self.friction not in ("stick", "sliding"):
-            raise ValueError(f"LQRWeights.friction = {self.friction!r} is invalid: 'stick' or 'sliding'")
+            raise ValueError(f"LQRWeights.friction = {shown(self.friction)} is invalid: 'stick' or 'sliding'")
 
 
 def lqr_design(params: MillParams, weights: LQRWeights, xd: float = 0.0, dt_s: float | None = None):

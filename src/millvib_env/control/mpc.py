@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from millvib_env._checks import instance, real
+from millvib_env._checks import instance, real, shown
 from millvib_env.analysis.linear import linearize
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import env_id_for
@@ -79,7 +79,7 @@ class MPCSettings:
     def __post_init__(self) -> None:
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) \
                 or not 1 <= self.horizon <= 400:
-            raise ValueError(f"MPCSettings.horizon = {self.horizon!r} is invalid: an integer in [1, 400] "
+            raise ValueError(f"MPCSettings.horizon = {shown(self.horizon)} is invalid: an integer in [1, 400] "
                              "(loop samples)")
         for name in ("q_x", "q_v", "q_i", "r", "r_d"):
             real(f"MPCSettings.{name}", getattr(self, name), lo=0.0, hi=1e12)
@@ -87,7 +87,7 @@ class MPCSettings:
         real("MPCSettings.du_v", self.du_v, lo=0.0, lo_open=True, hi=100.0)
         real("MPCSettings.residual_filter", self.residual_filter, lo=0.0, hi=1.0)
         if not isinstance(self.preview, (bool, np.bool_)):
-            raise ValueError(f"MPCSettings.preview = {self.preview!r} is invalid: True or False")
+            raise ValueError(f"MPCSettings.preview = {shown(self.preview)} is invalid: True or False")
 
 
 @dataclass

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from millvib_env._checks import shown
 from millvib_env.control.registry import REGISTRY
 from millvib_env.envs.config import CONFIG_ALIASES
 from millvib_env.tasks import Task, all_tasks, takes_task
@@ -30,7 +31,7 @@ def named_gains(name: str, task: Task, version: str = "v0") -> list[float]:
 
     gains_fn = REGISTRY[name].gains if name in REGISTRY else None
     if gains_fn is None:
-        raise ValueError(f"gains {name!r} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
+        raise ValueError(f"gains {shown(name)} unknown: name a fixed-gain baseline {list(NAMED_GAINS)}")
     return gains_fn(name, task, version)[0]
 
 

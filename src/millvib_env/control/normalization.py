@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from millvib_env._checks import shown_path
+from millvib_env._checks import shown_path, shown
 from millvib_env._paths import atomic_path
 
 __all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE"]
@@ -63,10 +63,10 @@ def load_obs_stats(path: str | Path, obs_dim: int | None = None) -> ObsStats:
         raise ValueError(f"{shown_path(path)}: mean and var must be finite vectors of one length, var >= 0")
     for name, value in (("clip_obs", stats.clip_obs), ("epsilon", stats.epsilon)):
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{shown_path(path)}: {name} = {value!r} is invalid: must be finite and > 0 "
+            raise ValueError(f"{shown_path(path)}: {name} = {shown(value)} is invalid: must be finite and > 0 "
                              "(VecNormalize's clip_obs and epsilon)")
     if not (math.isfinite(stats.count) and stats.count >= 0):
-        raise ValueError(f"{shown_path(path)}: count = {stats.count!r} is invalid: must be finite and >= 0")
+        raise ValueError(f"{shown_path(path)}: count = {shown(stats.count)} is invalid: must be finite and >= 0")
     if obs_dim is not None and stats.mean.size != obs_dim:
         raise ValueError(f"{shown_path(path)} holds statistics of {stats.mean.size} observations; the agent's "
                          f"environment has {obs_dim}")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from millvib_env._checks import shown
 from millvib_env.control.base import Controller, GainTable, PerEnvGains
 from millvib_env.control.lqr import lqr_gains
 from millvib_env.envs.actions import GainMap, fixed_actions, wide_actions
@@ -42,7 +43,7 @@ class FixedGainPolicy(Controller):
 
     def __init__(self, name: str, gains, description: str = ""):
         if not isinstance(description, str):
-            raise ValueError(f"description = {description!r:.60} is invalid: a string (a FixedGainPolicy takes a "
+            raise ValueError(f"description = {shown(description)} is invalid: a string (a FixedGainPolicy takes a "
                              "name, its gains and a description)")
         self.name, self.description = name, description
         self.gains = np.asarray(gains.to_array() if hasattr(gains, "to_array") else gains, float)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
+from millvib_env._checks import shown
 from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 from millvib_env.control.base import Controller
 from millvib_env.control.lqr import LQRWeights
@@ -79,7 +80,7 @@ def fixed_gains(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: G
     """A fixed-gain baseline (`Baseline.fixed`): its gains (`Baseline.gains`) as a `FixedGainPolicy`."""
     gains_fn = REGISTRY[name].gains
     if gains_fn is None:
-        raise ValueError(f"baseline {name!r} has no fixed gains (a Baseline.fixed entry has)")
+        raise ValueError(f"baseline {shown(name)} has no fixed gains (a Baseline.fixed entry has)")
     gains, how = gains_fn(name, task, version)
     return FixedGainPolicy(name, gains, how)
 
@@ -110,7 +111,7 @@ def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) 
     entry = control_entry(task, name, version)
     settings = entry.get("settings") if isinstance(entry, dict) else None
     if not isinstance(settings, dict):
-        raise ValueError(f"{control_config_path(task, version)} {name}.settings = {settings!r:.60} is invalid: "
+        raise ValueError(f"{control_config_path(task, version)} {name}.settings = {shown(settings)} is invalid: "
                          "a mapping of MPCSettings fields")
     fields = [f for f in MPCSettings.__dataclass_fields__ if f != "preview"]
     unknown = sorted(str(k) for k in settings if k not in fields)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._checks import choice, shown_path
+from millvib_env._checks import choice, shown_path, shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
@@ -37,8 +37,8 @@ def load_control_config(task: str | Task, version: str = "v0") -> dict[str, Any]
 def _read(task: Task, version: str) -> dict[str, Any]:
     path = control_config_path(task, version)
     if not path.is_file():
-        raise ValueError(f"no tuned baselines for task {task.name!r} in {version}: {shown_path(path)} is missing (run "
-                         f"millvib tune --task {task.name} --env-version {version} --write-config)")
+        raise ValueError(f"no tuned baselines for task {shown(task.name)} in {version}: {shown_path(path)} is "
+                         f"missing (run millvib tune --task {task.name} --env-version {version} --write-config)")
     return load_yaml(path, "control config", mapping=True)
 
 
@@ -49,7 +49,7 @@ def control_entry(task: Task, name: str, version: str = "v0", _via: tuple = ()) 
                          f"({' -> '.join(_via + (task.name,))}); one of them must hold the entry itself")
     data = _read(task, version)
     if name not in data:
-        raise ValueError(f"{control_config_path(task, version)} has no entry {name!r} (run millvib tune --task "
+        raise ValueError(f"{control_config_path(task, version)} has no entry {shown(name)} (run millvib tune --task "
                          f"{task.name} --env-version {version} --only {name} --write-config)")
     entry = data[name]
     source = shared_from(entry, f"{control_config_path(task, version)} {name}")
@@ -64,7 +64,7 @@ def shared_from(entry: Any, where: str) -> Task | None:
     if not isinstance(entry, dict) or "from_task" not in entry:
         return None
     if not isinstance(entry["from_task"], str):
-        raise ValueError(f"{where}.from_task = {entry['from_task']!r:.60} is invalid: a task name")
+        raise ValueError(f"{where}.from_task = {shown(entry['from_task'])} is invalid: a task name")
     return get_task(entry["from_task"])
 
 
@@ -82,7 +82,7 @@ def oracle_table(task: Task, name: str = "pid-oracle", version: str = "v0") -> G
     entry = control_entry(task, name, version)
     where = f"{control_config_path(task, version)} {name}"
     if not isinstance(entry, dict):
-        raise ValueError(f"{where} = {entry!r:.60} is invalid: a mapping with c1_grid, ct_grid and log10_gains")
+        raise ValueError(f"{where} = {shown(entry)} is invalid: a mapping with c1_grid, ct_grid and log10_gains")
     grids = []
     for key in ("c1_grid", "ct_grid"):
         try:

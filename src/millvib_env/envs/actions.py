@@ -126,16 +126,16 @@ class GainMap:
         if rel:
             base = np.asarray(rel.base, float)
             if base.shape != (len(names),):
-                raise ValueError(f"env config actions.relative.base = {rel.base!r} is invalid: it needs "
+                raise ValueError(f"env config actions.relative.base = {shown(rel.base)} is invalid: it needs "
                                  f"{len(names)} gains {list(names)} (pressure_feedback / force_feedforward set "
                                  "the entries)")
             try:
                 decades = np.broadcast_to(np.asarray(rel.decades, float), base.shape).copy()
             except ValueError:
-                raise ValueError(f"env config actions.relative.decades = {rel.decades!r} is invalid: one "
+                raise ValueError(f"env config actions.relative.decades = {shown(rel.decades)} is invalid: one "
                                  f"number or {len(names)} of them, one per gain {list(names)}") from None
             if np.any((base <= 0) & (decades > 0)):
-                raise ValueError(f"env config actions.relative.base = {rel.base!r} is invalid: a gain with a "
+                raise ValueError(f"env config actions.relative.base = {shown(rel.base)} is invalid: a gain with a "
                                  "log offset (decades > 0) needs a base > 0")
             return cls(names, lo, hi, True, base, decades)
         return cls(names, lo, hi, config.log_scaled_gains)

@@ -11,6 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from millvib_env._checks import shown
 from millvib_env.envs.config import ENV_VERSIONS, load_env_config
 from millvib_env.envs.core import MillVibCore
 from millvib_env.envs.specs import ENV_SPECS
@@ -25,7 +26,7 @@ ID_CONFIGS = {env_id: spec.config for env_id, spec in ENV_SPECS.items() if spec.
 
 def _entry(env_id: str) -> tuple[str, str]:
     if not isinstance(env_id, str) or env_id not in ENV_IDS:
-        raise ValueError(f"env_id = {env_id!r} is not a MillVib environment; known: {sorted(ENV_IDS)}")
+        raise ValueError(f"env_id = {shown(env_id)} is not a MillVib environment; known: {sorted(ENV_IDS)}")
     return ENV_IDS[env_id]
 
 
@@ -37,8 +38,8 @@ def id_config(env_id: str, config: str | dict | None) -> str | dict:
     if config is None:
         return own or "startup"
     if spec is not None and own is not None and config != own:
-        raise ValueError(f"config = {config!r} contradicts env_id {env_id!r}, whose config is {own!r}: use "
-                         f"{spec.generic_id!r} with config={config!r}")
+        raise ValueError(f"config = {shown(config)} contradicts env_id {shown(env_id)}, whose config is "
+                         f"{shown(own)}: use {shown(spec.generic_id)} with config={shown(config)}")
     return config
 
 
@@ -57,7 +58,7 @@ def env_id_for(mode: str, version: str) -> str:
     for env_id, entry in ENV_IDS.items():
         if entry == (mode, version):
             return env_id
-    raise ValueError(f"no MillVib environment of mode {mode!r} and version {version!r}; versions: "
+    raise ValueError(f"no MillVib environment of mode {shown(mode)} and version {shown(version)}; versions: "
                      f"{list(ENV_VERSIONS)}")
 
 

@@ -68,7 +68,7 @@ def _read(name: str | Path, _seen: tuple = ()) -> dict:
     parent = data.pop("inherit", None)
     if parent is not None:
         if not isinstance(parent, str):
-            raise ValueError(f"environment config {shown_path(path)}: inherit = {parent!r} must be a config name")
+            raise ValueError(f"environment config {shown_path(path)}: inherit = {shown(parent)} must be a config name")
         data = _merge(_read(parent, _seen + (path.resolve(),)), data)
     return data
 
@@ -521,7 +521,7 @@ def _decades(path: str, value: Any) -> None:
 def checked_gains(gains: Any, where: str, hint: str = "") -> list[float]:
     """A fixed controller's gains, checked: 3-5 finite numbers >= 0 (KP, KI, KD[, KPL[, KFF]])."""
     if not isinstance(gains, list) or not 3 <= len(gains) <= 5:
-        raise ValueError(f"{where} = {gains!r} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])"
+        raise ValueError(f"{where} = {shown(gains)} is invalid: a list of 3-5 gains (KP, KI, KD[, KPL[, KFF]])"
                          + (f" ({hint})" if hint else ""))
     for k, g in enumerate(gains):
         if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(as_float(g)) or g < 0:
@@ -579,7 +579,8 @@ def _randomize(data: dict, base: MillParams) -> tuple[Distribution, ...]:
     for name, entry in spec.items():
         path = f"randomize.{name}"
         if name not in PARAM_FIELDS:
-            raise ValueError(f"env config randomize: unknown plant parameter {name!r}; known: {list(PARAM_FIELDS)}")
+            raise ValueError(f"env config randomize: unknown plant parameter {shown(name)}; known: "
+                             f"{list(PARAM_FIELDS)}")
         _section(path, entry, {"dist": lambda p, v: v in ("loguniform", "uniform", "fixed") or _fail(
             p, v, "one of 'loguniform', 'uniform', 'fixed'"), "low": _number, "high": _number}, required=("low",))
         kind = entry.get("dist", "uniform")
@@ -616,7 +617,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", *, version:
     environment's: v1 runs a named config on the loop as commissioned (configs/env/v1/).
     """
     if version not in ENV_VERSIONS:
-        raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
+        raise ValueError(f"version = {shown(version)} is invalid: one of {list(ENV_VERSIONS)}")
     if config is None:
         config = "startup"
     if isinstance(config, (str, Path)):
@@ -624,7 +625,7 @@ def load_env_config(config: str | Path | Mapping | None = "startup", *, version:
     elif isinstance(config, Mapping):
         data = _merge(_read_version("startup", version), config)
     else:
-        raise ValueError(f"config = {config!r} is invalid: a config name {list_env_configs()}, a path or a dict")
+        raise ValueError(f"config = {shown(config)} is invalid: a config name {list_env_configs()}, a path or a dict")
     data = _merge(data, overrides)
     for key in _OPTIONAL_KEYS:
         data.setdefault(key, None)
@@ -677,7 +678,7 @@ def _base_params(plant: Any) -> MillParams:
         elif isinstance(plant, Mapping):
             base = MillParams.from_dict(plant)
         else:
-            raise ValueError(f"must be a preset name or a mapping of MillParams fields, not {plant!r}")
+            raise ValueError(f"must be a preset name or a mapping of MillParams fields, not {shown(plant)}")
     except ValueError as err:
         raise ValueError(f"env config plant: {err}") from None
     return base
@@ -708,7 +709,7 @@ class VersionedConfig(Mapping[str, EnvConfig]):
 
     def __getitem__(self, version: str) -> EnvConfig:
         if version not in ENV_VERSIONS:
-            raise ValueError(f"version = {version!r} is invalid: one of {list(ENV_VERSIONS)}")
+            raise ValueError(f"version = {shown(version)} is invalid: one of {list(ENV_VERSIONS)}")
         return cached_env_config(self.name, version)
 
     def __contains__(self, version: object) -> bool:

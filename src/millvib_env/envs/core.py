@@ -63,13 +63,13 @@ class MillVibCore:
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  extra_disturbances: Sequence | None = None, reward_fn: Any = None, envelope_fn: Any = None):
         if mode not in ("gain", "valve"):
-            raise ValueError(f"mode = {mode!r} is invalid: 'gain' or 'valve'")
+            raise ValueError(f"mode = {shown(mode)} is invalid: 'gain' or 'valve'")
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n_envs = {n!r} is invalid: an integer >= 1")
+            raise ValueError(f"n_envs = {shown(n)} is invalid: an integer >= 1")
         for name, flag in (("residual", residual), ("observe_params", observe_params),
                            ("observe_phase", observe_phase)):
             if flag is not None and not isinstance(flag, (bool, np.bool_)):
-                raise ValueError(f"{name} = {flag!r} is invalid: must be True or False")
+                raise ValueError(f"{name} = {shown(flag)} is invalid: must be True or False")
         self.n, self.mode, self.cfg, self.residual = int(n), mode, config, bool(residual and mode == "valve")
         seen = config.observation
         observe_params = seen.params if observe_params is None else observe_params
@@ -195,7 +195,7 @@ class MillVibCore:
     # ------------------------------------------------------------------------------------------
     def seed_env(self, i: int, seed: int | None) -> None:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-            raise ValueError(f"seed = {seed!r} is invalid: a non-negative integer or None")
+            raise ValueError(f"seed = {shown(seed)} is invalid: a non-negative integer or None")
         self.np_random[i], _ = seeding.np_random(None if seed is None else int(seed))
 
     def reset_env(self, i: int, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -268,7 +268,7 @@ class MillVibCore:
         try:
             a = np.asarray(actions, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
-            raise ValueError(f"action = {actions!r} is invalid: numbers in [-1, 1] of shape ({self.act_dim},)") \
+            raise ValueError(f"action = {shown(actions)} is invalid: numbers in [-1, 1] of shape ({self.act_dim},)") \
                 from None
         if a.shape == (self.act_dim,) and self.n == 1:
             a = a[None, :]

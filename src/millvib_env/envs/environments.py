@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import gymnasium as gym
 
-from millvib_env._checks import seed_or_none
+from millvib_env._checks import seed_or_none, shown
 from millvib_env.envs.actions import LoopController, base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
@@ -30,7 +30,7 @@ class MillVibEnv(gym.Env):
                  envelope_fn: EnvelopeFunction | None = None, base_controller: LoopController | None = None,
                  **overrides: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode = {render_mode!r} is invalid: one of {self.metadata['render_modes']} "
+            raise ValueError(f"render_mode = {shown(render_mode)} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
         overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
         self.config = load_env_config(config, version=env_version, **overrides)

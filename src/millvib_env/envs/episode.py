@@ -42,7 +42,7 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
     if options is None:
         return {}
     if not isinstance(options, Mapping):
-        raise ValueError(f"reset options = {options!r} is invalid: a dict with keys {list(RESET_OPTIONS)}")
+        raise ValueError(f"reset options = {shown(options)} is invalid: a dict with keys {list(RESET_OPTIONS)}")
     unknown = set(options) - set(RESET_OPTIONS)
     if unknown:
         raise ValueError(f"unknown reset option(s) {sorted(unknown, key=repr)}: use "
@@ -51,18 +51,18 @@ def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
     params = out.get("params")
     if params is not None:
         if not isinstance(params, Mapping):
-            raise ValueError(f"reset option params = {params!r} is invalid: a dict of plant parameters")
+            raise ValueError(f"reset option params = {shown(params)} is invalid: a dict of plant parameters")
         bad = set(params) - set(PARAM_FIELDS)
         if bad:
             raise ValueError(f"reset option params: unknown plant parameter(s) {sorted(bad)}; known: "
                              f"{list(PARAM_FIELDS)}")
         for k, v in params.items():
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise ValueError(f"reset option params.{k} = {v!r} is invalid: must be a number")
+                raise ValueError(f"reset option params.{k} = {shown(v)} is invalid: must be a number")
         config.base_params.replace(**dict(params))  # range checks (MillParams refuses a number beyond a float)
     scenario = out.get("scenario")
     if scenario is not None and not isinstance(scenario, str):
-        raise ValueError(f"reset option scenario = {scenario!r} is invalid: a scenario name")
+        raise ValueError(f"reset option scenario = {shown(scenario)} is invalid: a scenario name")
     x0 = out.get("x0")
     if x0 is not None:
         x_max = config.envelope.x_max_m

@@ -9,7 +9,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
-from millvib_env._checks import seed_or_none
+from millvib_env._checks import seed_or_none, shown
 from millvib_env.envs.actions import base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
@@ -35,7 +35,7 @@ class MillVibVecEnv(VecEnv):
                  envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
         mode = env_mode(env_id)
         if render_mode not in (None, "rgb_array", "human"):
-            raise ValueError(f"render_mode = {render_mode!r} is invalid")
+            raise ValueError(f"render_mode = {shown(render_mode)} is invalid")
         self.env_id = env_id
         self.render_mode = render_mode
         overrides = base_controller_overrides(mode, residual, base_controller, overrides)
@@ -103,20 +103,20 @@ class MillVibVecEnv(VecEnv):
         for owner in (self, self.core):
             if hasattr(owner, attr_name):
                 return [getattr(owner, attr_name)] * len(idx)
-        raise AttributeError(f"MillVib environments have no attribute {attr_name!r}")
+        raise AttributeError(f"MillVib environments have no attribute {shown(attr_name)}")
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         if attr_name == "render_mode":
             self.render_mode = value
             self.core.keep_history = self.core.keep_history or value is not None
             return
-        raise AttributeError(f"setting {attr_name!r} on a batched MillVib env is not supported; make a new one")
+        raise AttributeError(f"setting {shown(attr_name)} on a batched MillVib env is not supported; make a new one")
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
         idx = list(self._get_indices(indices))
         if method_name == "reset":
             return [self.core.reset_env(i, *method_args, **method_kwargs) for i in idx]
-        raise AttributeError(f"MillVib environments have no method {method_name!r} callable through the VecEnv")
+        raise AttributeError(f"MillVib environments have no method {shown(method_name)} callable through the VecEnv")
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         return [False] * len(list(self._get_indices(indices)))

@@ -16,7 +16,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from millvib_env._checks import seed_or_none
+from millvib_env._checks import seed_or_none, shown
 from millvib_env.envs.actions import base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
@@ -35,7 +35,7 @@ class MillVibVectorEnv(VectorEnv):
                  render_mode: str | None = None, extra_disturbances: Sequence | None = None, reward_fn: Any = None,
                  envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
         if render_mode is not None:
-            raise ValueError(f"render_mode = {render_mode!r} is invalid for the vector environment: None (render "
+            raise ValueError(f"render_mode = {shown(render_mode)} is invalid for the vector environment: None (render "
                              "one environment: gym.make)")
         overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
         self.config = load_env_config(config, version=env_version, **overrides)

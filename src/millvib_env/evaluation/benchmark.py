@@ -314,7 +314,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     other (docs/benchmark.md)."""
 
     if env_version not in ENV_VERSIONS:
-        raise ValueError(f"--env-version {env_version!r} is invalid: one of {list(ENV_VERSIONS)}")
+        raise ValueError(f"--env-version {shown(env_version)} is invalid: one of {list(ENV_VERSIONS)}")
     env_id = env_id_for("gain", env_version)
     jobs = integer("jobs", jobs, lo=1, hi=1024)
     assert isinstance(task, Task)  # a name was resolved by @takes_task
@@ -324,14 +324,14 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     names, own = _own_controllers(controllers, env_version) if controllers is not None else \
         (baseline_names(env_version) + list_agents(t.name, env_version), {})
     if own and ray is not None:
-        raise ValueError(f"ray = {ray!r} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
-                         "in this process; give ray=None")
+        raise ValueError(f"ray = {shown(ray)} is invalid with a Controller object of your own ({', '.join(own)}): "
+                         "it runs in this process; give ray=None")
     if own and jobs > 1:
         raise ValueError(f"jobs = {jobs} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
                          "in this process; give jobs=1")
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
-        raise ValueError(f"--reference {reference!r} is invalid: a baseline {baseline_names()} or an agent")
+        raise ValueError(f"--reference {shown(reference)} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
         names = [reference] + names  # loaded first: an unknown name fails at once, in one line
     if scenarios is None:

@@ -13,7 +13,7 @@ from typing import Any, Sequence, TypedDict, cast
 
 import numpy as np
 
-from millvib_env._checks import choice, instance, integer, integers, real
+from millvib_env._checks import choice, instance, integer, integers, real, shown
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import ENV_IDS, EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
@@ -85,7 +85,7 @@ def episode_cost(severity_mm_s: float, tracking_rms_um: float, scales: dict | No
     """The benchmark's cost of an episode: severity / scale + tracking RMS / scale (`COST_SCALES`)."""
     s = COST_SCALES if scales is None else scales
     if not isinstance(s, dict) or set(s) != set(COST_SCALES):
-        raise ValueError(f"scales = {scales!r:.60} is invalid: None or a dict with keys {sorted(COST_SCALES)}")
+        raise ValueError(f"scales = {shown(scales)} is invalid: None or a dict with keys {sorted(COST_SCALES)}")
     sev = real("severity_mm_s", severity_mm_s, lo=0.0)
     trk = real("tracking_rms_um", tracking_rms_um, lo=0.0)
     return sev / real("scales['severity_mm_s']", s["severity_mm_s"], lo=0.0, lo_open=True) + \

@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from millvib_env._checks import integer, strings
+from millvib_env._checks import integer, strings, shown
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.factory import load_controller
@@ -44,7 +44,7 @@ def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:
         if name not in RANGES:
-            raise ValueError(f"--params {name!r} is invalid: one of {list(RANGES)}")
+            raise ValueError(f"--params {shown(name)} is invalid: one of {list(RANGES)}")
         dist, lo, hi = RANGES[name]
         out[name] = {"dist": dist, "low": lo, "high": hi}
     return out

@@ -211,7 +211,7 @@ def _check_stroke(p_list, xs) -> None:
 
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     if not _real(t_end) or not _real(dt_out):
-        raise ValueError(f"t_end = {t_end!r} s and dt_out = {dt_out!r} s must be numbers (s)")
+        raise ValueError(f"t_end = {shown(t_end)} s and dt_out = {shown(dt_out)} s must be numbers (s)")
     if not (math.isfinite(as_float(t_end)) and t_end > 0):
         raise ValueError(f"t_end = {shown(t_end)} s is invalid: must be finite and > 0")
     if not (math.isfinite(as_float(dt_out)) and 0 < dt_out <= t_end):
@@ -219,8 +219,9 @@ def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     ratio = as_float(t_end) / as_float(dt_out)  # in float64: a float32 t_end / dt_out can overflow to inf
     n = int(round(ratio)) + 1 if ratio < MAX_SAMPLES else MAX_SAMPLES + 1
     if n > MAX_SAMPLES:
-        raise ValueError(f"t_end = {t_end!r} s with dt_out = {dt_out!r} s would need {ratio + 1:.3g} samples per run; "
-                         f"allowed up to {MAX_SAMPLES:.0e} (at most {MAX_SAMPLES * dt_out:.3g} s at this dt_out)")
+        raise ValueError(f"t_end = {shown(t_end)} s with dt_out = {shown(dt_out)} s would need {ratio + 1:.3g} "
+                         f"samples per run; allowed up to {MAX_SAMPLES:.0e} (at most {MAX_SAMPLES * dt_out:.3g} s at "
+                         "this dt_out)")
     return np.arange(n) * dt_out
 
 
@@ -252,7 +253,7 @@ def _as_list(obj, cls, n: int | None, name: str) -> list:
     if isinstance(obj, cls):
         return [obj] * (n or 1)
     if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__iter__"):
-        raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
+        raise ValueError(f"{name} = {shown(obj)} is invalid: a {cls.__name__} or a sequence of them")
     items = list(obj)
     if not items:
         raise ValueError(f"{name} is empty: give at least one {cls.__name__}")
@@ -268,7 +269,7 @@ def _plants_and_gains(params, gains) -> tuple[list, list]:
     for obj, cls, name in ((params, MillParams, "params"), (gains, PIDGains, "gains")):
         if not isinstance(obj, cls):
             if isinstance(obj, (str, bytes, dict)) or not hasattr(obj, "__len__"):
-                raise ValueError(f"{name} = {obj!r:.60} is invalid: a {cls.__name__} or a sequence of them")
+                raise ValueError(f"{name} = {shown(obj)} is invalid: a {cls.__name__} or a sequence of them")
             n = len(obj) if n is None else n
     p_list = _as_list(params, MillParams, n, "params")
     g_list = _as_list(gains, PIDGains, n, "gains")
@@ -293,10 +294,10 @@ def _start_positions(x0, n: int) -> np.ndarray:
     """The N plants' start positions (m): one finite number for all or one per plant."""
     x0a = _as_floats("x0", x0)
     if x0a.ndim > 1 or x0a.size not in (1, n):
-        raise ValueError(f"x0 = {x0!r:.60} is invalid: a number (m) or one per plant ({n})")
+        raise ValueError(f"x0 = {shown(x0)} is invalid: a number (m) or one per plant ({n})")
     x0s = np.broadcast_to(x0a.reshape(-1), (n,))
     if not np.all(np.isfinite(x0s)):
-        raise ValueError(f"x0 = {x0!r} is invalid: must be finite")
+        raise ValueError(f"x0 = {shown(x0)} is invalid: must be finite")
     return x0s
 
 
@@ -360,7 +361,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     t = _time_grid(t_end, dt_out)
     t_end, dt_out = float(t_end), float(dt_out)
     if not isinstance(pid_on, (bool, np.bool_)):
-        raise ValueError(f"pid_on = {pid_on!r:.60} is invalid: True or False")
+        raise ValueError(f"pid_on = {shown(pid_on)} is invalid: True or False")
     u_ext = real("u_ext", u_ext)  # V
     p_list, g_list = _plants_and_gains(params, gains)
     N = len(p_list)
@@ -406,7 +407,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         YS, status, t_fail, n_steps = _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method,
                                                        p_max, progress, options)
     else:
-        raise ValueError(f"method = {method!r} is invalid: use 'fast' or 'reference'")
+        raise ValueError(f"method = {shown(method)} is invalid: use 'fast' or 'reference'")
     wall = time.perf_counter() - start
     return BatchResult(t=t, states=YS, xd=XD, params=p_list, gains=g_list, method=method,
                        diverged=status != kernel.OK, t_diverged=t_fail,

@@ -352,11 +352,11 @@ class PlantChange:
                     or not math.isfinite(as_float(value)):
                 raise ValueError(f"PlantChange.{name} = {shown(value)} is invalid: must be a finite number")
         if self.t0_s < 0 or self.duration_s <= 0:
-            raise ValueError(f"PlantChange: t0_s = {self.t0_s!r} must be >= 0 and duration_s = "
-                             f"{self.duration_s!r} > 0 (s)")
+            raise ValueError(f"PlantChange: t0_s = {shown(self.t0_s)} must be >= 0 and duration_s = "
+                             f"{shown(self.duration_s)} > 0 (s)")
         if self.c1_factor <= 0 or self.ct_factor <= 0:
-            raise ValueError(f"PlantChange: c1_factor = {self.c1_factor!r} and ct_factor = {self.ct_factor!r} "
-                             "must be > 0")
+            raise ValueError(f"PlantChange: c1_factor = {shown(self.c1_factor)} and ct_factor = "
+                             f"{shown(self.ct_factor)} must be > 0")
 
     def write(self, c: np.ndarray) -> None:
         c[C_CHG_T0], c[C_CHG_DT] = self.t0_s, self.duration_s

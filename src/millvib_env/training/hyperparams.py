@@ -13,7 +13,7 @@ import ast
 from pathlib import Path
 from typing import Any
 
-from millvib_env._checks import shown_path
+from millvib_env._checks import shown_path, shown
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 
@@ -57,7 +57,7 @@ def parse_zoo_value(value: Any, where: str = "value") -> Any:
     try:
         tree = ast.parse(value.strip(), mode="eval")
     except SyntaxError:
-        raise ValueError(f"{where}: {value!r} is not a valid dict(...) expression") from None
+        raise ValueError(f"{where}: {shown(value)} is not a valid dict(...) expression") from None
     return _convert(tree.body, where)
 
 
@@ -70,14 +70,14 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     table = load_yaml(path, "hyperparameter file") or {}
     if not isinstance(table, dict) or env_id not in table or not isinstance(table[env_id], dict):
         have = sorted(map(str, table)) if isinstance(table, dict) else []  # keys of any type
-        raise ValueError(f"{shown_path(path)} has no entry for {env_id!r}; it has {have}")
+        raise ValueError(f"{shown_path(path)} has no entry for {shown(env_id)}; it has {have}")
     hp = {k: parse_zoo_value(v, f"{path} [{env_id}] {k}") for k, v in table[env_id].items()}
     for key in ("n_envs", "n_timesteps", "policy"):
         if key not in hp:
-            raise ValueError(f"{shown_path(path)} [{env_id}] is missing {key!r}")
+            raise ValueError(f"{shown_path(path)} [{env_id}] is missing {shown(key)}")
     for key in ("n_envs", "n_timesteps"):
         value = hp[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 1 or value != int(value):
-            raise ValueError(f"{shown_path(path)} [{env_id}] {key} = {value!r} is invalid: a whole number >= 1")
+            raise ValueError(f"{shown_path(path)} [{env_id}] {key} = {shown(value)} is invalid: a whole number >= 1")
         hp[key] = int(value)
     return hp

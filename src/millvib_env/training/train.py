@@ -26,7 +26,7 @@ from typing import cast
 
 import numpy as np
 
-from millvib_env._checks import shown_path
+from millvib_env._checks import shown_path, shown
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
 from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
@@ -101,14 +101,14 @@ def _agent_env_kwargs(raw, task: Task, version: str) -> dict:
 
     raw = raw or {}
     if not isinstance(raw, dict):
-        raise ValueError(f"env_kwargs = {raw!r:.60} in the hyperparameters is invalid: a mapping")
+        raise ValueError(f"env_kwargs = {shown(raw)} in the hyperparameters is invalid: a mapping")
     episode_keys = sorted(set(raw) - AGENT_ENV_KEYS, key=repr)
     if episode_keys:
         raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
                          f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
     if "config" in raw and raw["config"] != task.config:
-        raise ValueError(f"env_kwargs config = {raw['config']!r:.60} in the hyperparameters is not task "
-                         f"{task.name!r}'s ({task.config!r}): choose the task with --task")
+        raise ValueError(f"env_kwargs config = {shown(raw['config'])} in the hyperparameters is not task "
+                         f"{shown(task.name)}'s ({shown(task.config)}): choose the task with --task")
     out = resolve_named_gains_for(raw, task, version)
     if task.name != "startup":
         out["config"] = task.config
@@ -236,8 +236,8 @@ def _check_id_runs_task(env_id: str, task) -> None:
 
     spec = ENV_SPECS.get(env_id)
     if spec is not None and spec.config is not None and spec.config != task.config:
-        raise ValueError(f"--env {env_id} runs config {spec.config!r}, not task {task.name!r}'s "
-                         f"({task.config!r}): pass --task {spec.config} or a generic id")
+        raise ValueError(f"--env {env_id} runs config {shown(spec.config)}, not task {shown(task.name)}'s "
+                         f"({shown(task.config)}): pass --task {spec.config} or a generic id")
 
 
 def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs: dict | None, env_id: str,
@@ -272,7 +272,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
     card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX."""
     if select not in ("last", "best", "trained"):
-        raise ValueError(f"--select {select!r} is invalid: 'last', 'best' or 'trained'")
+        raise ValueError(f"--select {shown(select)} is invalid: 'last', 'best' or 'trained'")
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
     from stable_baselines3.common.vec_env import VecNormalize
@@ -434,7 +434,7 @@ def train_seeds(seeds, *, task: str | Task = "startup", jobs: int = 2, save_dir:
 
     seeds = list(dict.fromkeys(seeds))
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise ValueError(f"--jobs {jobs!r} is invalid: a whole number >= 1")
+        raise ValueError(f"--jobs {shown(jobs)} is invalid: a whole number >= 1")
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     the_task = task
     for s in seeds:

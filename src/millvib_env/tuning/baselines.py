@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from millvib_env._checks import integer
+from millvib_env._checks import integer, shown
 from millvib_env._paths import check_output, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
@@ -138,8 +138,8 @@ class _Run:
         """Entry `name` from this run, else from the shipped config (an entry another builds on)."""
         entry = self.out.get(name, self.shipped.get(name))
         if entry is None:
-            raise ValueError(f"tuning needs the {name!r} entry of task {self.t.name!r}: tune it in the same run "
-                             f"(--only {name} ...)")
+            raise ValueError(f"tuning needs the {shown(name)} entry of task {shown(self.t.name)}: tune it in the "
+                             f"same run (--only {name} ...)")
         return entry
 
     def bar(self, name: str) -> str | None:

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import optimize
 
+from millvib_env._checks import shown
 from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import oracle_table
@@ -286,7 +287,7 @@ def optuna_storage(storage: str):
     import optuna
 
     if not isinstance(storage, str) or not (storage.startswith("journal:") or "://" in storage):
-        raise ValueError(f"--optuna {storage!r} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
+        raise ValueError(f"--optuna {shown(storage)} is invalid: journal:PATH or a database URL such as sqlite:///tune.db")
     try:
         if storage.startswith("journal:"):
             from optuna.storages.journal import JournalFileBackend, JournalStorage
@@ -295,7 +296,7 @@ def optuna_storage(storage: str):
         return optuna.storages.RDBStorage(storage)
     except Exception as err:  # an unknown dialect, a driver not installed, a file that cannot be opened
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise ValueError(f"--optuna {storage!r} cannot be opened: {first[:200]}") from None
+        raise ValueError(f"--optuna {shown(storage)} cannot be opened: {first[:200]}") from None
 
 
 def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: str, n_trials: int,
