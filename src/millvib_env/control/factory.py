@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from millvib_env._checks import shown_path, shown
+from millvib_env._checks import shown, shown_path
 from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller
 from millvib_env.control.onnx_policy import OnnxPolicy, is_onnx_name

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from millvib_env._checks import shown_path, shown
+from millvib_env._checks import shown, shown_path
 from millvib_env._paths import atomic_path
 
 __all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE"]

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from millvib_env._checks import choice, shown_path, shown
+from millvib_env._checks import choice, shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable

@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from millvib_env._checks import integer, strings, shown
+from millvib_env._checks import integer, shown, strings
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.control.factory import load_controller

@@ -13,7 +13,7 @@ import ast
 from pathlib import Path
 from typing import Any
 
-from millvib_env._checks import shown_path, shown
+from millvib_env._checks import shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 

@@ -26,7 +26,7 @@ from typing import cast
 
 import numpy as np
 
-from millvib_env._checks import shown_path, shown
+from millvib_env._checks import shown, shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
 from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
