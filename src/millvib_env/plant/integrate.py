@@ -338,7 +338,7 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     gains = PAPER_GAINS if gains is None else instance("gains", gains, PIDGains, "a PIDGains")
     res = simulate_batch([params], [gains], t_end, x0=x0, xd=xd, method=method, dt_out=dt_out, rtol=rtol,
                          ivp_method=ivp_method, u_ext=u_ext, pid_on=pid_on,
-                         y0=None if y0 is None else _initial_states(y0, 1), change=change,
+                         y0=y0, change=change,
                          ivp_options=ivp_options)
     out = res[0]
     out.info["wall_s"] = res.wall_s
