@@ -253,8 +253,10 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path):
     it), its card says how it was made and selected, and it was scored on the validation plants."""
     from millvib_env.training.distill import distill
 
-    card = distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False)
-    assert card["selected"]["iteration"] == 1 and card["validation"]["episodes"] == 40
+    card = distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False,
+                   validation_episodes=4)
+    assert card["selected"]["iteration"] == 1 and card["validation"]["episodes"] == 4
+    assert card["validation"]["seeds"] == "15000-15003"  # the first of the task's validation plants
     agent = load_controller(str(tmp_path / "agent"), "startup")
     assert agent.env_id == "MillVib-Valve-v1" and agent.card["trained_by"].startswith("DAgger from mpc-preview")
     rec = run_episodes(agent, [20000], task="startup")[0]

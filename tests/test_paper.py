@@ -55,23 +55,26 @@ def test_ode45_default_tolerances_leave_a_tail_orders_above_the_converged_one_th
 def test_the_studies_in_processes_give_the_numbers_of_one_process():
     """`millvib reproduce --jobs N`: the stability map's cells and the solver study's runs are independent, so
     spawned processes give the same KP_crit and rows (wall times aside), and the runs come back whole (a run's
-    auxiliary outputs are computed before it is pickled)."""
+    auxiliary outputs are computed before it is pickled). Both pools' modules are declared first, as reproduce
+    declares them (`distributed.expect_modules`)."""
     import dataclasses
 
     import numpy as np
 
     from millvib_env.analysis.linear import stability_map
     from millvib_env.analysis.solver_study import SOLVERS, run_solver_study
+    from millvib_env.distributed import expect_modules
 
-    one = stability_map([1.25e5, 2.25e6], [5e-16], friction="sliding")
-    two = stability_map([1.25e5, 2.25e6], [5e-16], friction="sliding", processes=2)
-    np.testing.assert_array_equal(one, two)
     case = (PAPER_STUDIES[0], PAPER_STUDIES[0].cases[0])
     runs = {}
-    for n in (1, 2):
-        rows, runs[n] = run_solver_study(0.2, solvers=(SOLVERS[0], SOLVERS[2]), progress=False, cases=[case],
-                                         processes=n)
-        runs[n]["rows"] = [dataclasses.replace(r, wall_s=0.0) for r in rows]
+    with expect_modules("millvib_env.analysis.linear", "millvib_env.analysis.solver_study"):
+        one = stability_map([1.25e5, 2.25e6], [5e-16], friction="sliding")
+        two = stability_map([1.25e5, 2.25e6], [5e-16], friction="sliding", processes=2)
+        np.testing.assert_array_equal(one, two)
+        for n in (1, 2):
+            rows, runs[n] = run_solver_study(0.2, solvers=(SOLVERS[0], SOLVERS[2]), progress=False, cases=[case],
+                                             processes=n)
+            runs[n]["rows"] = [dataclasses.replace(r, wall_s=0.0) for r in rows]
     assert runs[1]["rows"] == runs[2]["rows"]
     for key in runs[1]:
         if key != "rows":

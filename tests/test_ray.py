@@ -42,11 +42,12 @@ def test_a_benchmark_on_ray_equals_the_local_run(local_cluster):
 
 def test_seeds_train_as_ray_tasks_and_match_local_training(local_cluster, tmp_path):
     from millvib_env.training.train import train_seeds
-    from tests.test_training import EXTRA, TINY
+    from tests.test_training import EXTRA, QUICK_VALIDATION, TINY
 
     cfg = tmp_path / "ppo.yml"
     cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
-    kw = dict(algo="ppo", config=str(cfg), eval_freq=128, n_eval_episodes=2, checkpoint_freq=128)
+    kw = dict(algo="ppo", config=str(cfg), eval_freq=128, n_eval_episodes=2, checkpoint_freq=128,
+              validation_episodes=QUICK_VALIDATION)
     on_ray = train_seeds([6, 7], ray=local_cluster, log_dir=str(tmp_path / "ray"), **kw)
     local = train_seeds([6, 7], jobs=1, log_dir=str(tmp_path / "local"), **kw)
     for a, b in zip(on_ray, local):

@@ -150,6 +150,9 @@ def test_a_batch_too_large_for_memory_is_refused_before_allocating():
     (["benchmark", "--episodes", "abc"], "--episodes"),
     (["benchmark", "--json", "/proc/version/x.json"], "--json"),
     (["train", "--algo", "ppo", "--n-timesteps", "0"], "--n-timesteps"),
+    (["train", "--algo", "ppo", "--validation-episodes", "0"], "--validation-episodes"),
+    (["train", "--algo", "ppo", "--validation-episodes", "1001"], "--validation-episodes = 1001 is invalid: a whole "
+                                                                  "number in [1, 1000]"),
     (["train", "--algo", "ppo", "--task", "rolling", "--seed", "99"], "training seed 99"),
     (["simulate", "--set", "c1=abc"], "c1"),
     (["simulate", "--set", "c1=-1"], "c1"),
@@ -177,7 +180,8 @@ FUZZ_FLAGS = {
     "benchmark": (["--controllers", "pid-paper", "--no-scenarios", "--episodes", "2", "--quiet", "--no-figures"],
                   ["--task", "--episodes", "--seed", "--controllers", "--json", "--out", "--env"]),
     "train": (["--algo", "ppo", "--quiet"], ["--algo", "--task", "--seed", "--jobs", "--eval-freq", "--env",
-                                              "--n-eval-episodes", "--checkpoint-freq", "--config", "--save-dir"]),
+                                              "--n-eval-episodes", "--checkpoint-freq", "--config", "--save-dir",
+                                              "--validation-episodes"]),
     "simulate": (["--t-end", "0.05"], ["--set", "--kp", "--ki", "--kd", "--t-end", "--x0", "--preset", "--method",
                                        "--csv"]),
     "sweep": (["--controllers", "pid-paper", "--plants", "2", "--quiet", "--no-figures"],
@@ -304,12 +308,12 @@ def test_the_same_benchmark_gives_the_same_json_bytes(tmp_path):
 @pytest.mark.slow
 def test_resume_falls_back_to_the_last_intact_checkpoint_and_keeps_the_evaluations(tmp_path, capsys):
     from millvib_env.training.train import train
-    from tests.test_training import EXTRA, TINY
+    from tests.test_training import EXTRA, QUICK_VALIDATION, TINY
 
     cfg = tmp_path / "ppo.yml"
     cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
     kw = dict(config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128, n_eval_episodes=2,
-              checkpoint_freq=128, progress=False)
+              checkpoint_freq=128, progress=False, validation_episodes=QUICK_VALIDATION)
     train("ppo", seed=2, **kw)
     ckpts = tmp_path / "runs" / "ppo_MillVib-GainSchedule-v1_s2" / "checkpoints"
     newest = max(ckpts.glob("rl_model_*_steps.zip"), key=lambda p: int(p.stem.split("_")[-2]))

@@ -260,7 +260,8 @@ def _cmd_distill(args) -> int:
     card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
-                   loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]))
+                   loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]),
+                   validation_episodes=args.validation_episodes)
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
         print(f"updated {write_manifest()}")
@@ -461,6 +462,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
     p.add_argument("--episodes", type=int, default=25, help="training episodes per iteration (default 25)")
     p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
+    p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
+                   help="each iteration's student is scored on the first N of the task's validation plants "
+                        "(default 40, as the shipped agents')")
     p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
                    help="the student's hidden layers (default 256 256)")
     p.add_argument("--range-v", type=float, default=100.0,

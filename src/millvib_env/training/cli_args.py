@@ -39,6 +39,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--eval-freq", type=int, default=10_000, help="evaluate every N environment steps (default 10000)")
     p.add_argument("--n-eval-episodes", type=int, default=8, help="episodes per evaluation (default 8)")
     p.add_argument("--checkpoint-freq", type=int, default=20_000, help="checkpoint every N steps (default 20000)")
+    p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
+                   help="the model card's validation: the first N of the task's validation plants (default 40, as "
+                        "the shipped agents'; fewer for a quick trial)")
     p.add_argument("--note", help="a sentence for the model card (e.g. why n_timesteps was lowered)")
     p.add_argument("--select", choices=["last", "best", "trained"], default="last",
                    help="ship the final policy (default), the best one on the fixed evaluation plants, the "

@@ -41,7 +41,7 @@ from millvib_env.control.normalization import ObsStats
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.loop.kernel import K_UCTRL
 from millvib_env.tasks import Task, takes_task
-from millvib_env.training.train import validation_result
+from millvib_env.training.train import N_VALIDATION, validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
 
@@ -136,9 +136,11 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             iterations: int = 4,
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
-            loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None) -> dict:
+            loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
+            validation_episodes: int = N_VALIDATION) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
-    `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card."""
+    `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
+    on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents')."""
     import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
@@ -152,6 +154,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         raise ValueError(f"iterations x episodes = {iterations * episodes} is invalid: a training seed has 100 "
                          "training plants")
     epochs = integer("epochs", epochs, lo=1, hi=1000)
+    validation_episodes = integer("validation_episodes", validation_episodes, lo=1, hi=len(t.seeds["validation"]))
     torch.manual_seed(seed)
     env_id = "MillVib-Valve-v1"
 
@@ -192,7 +195,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
         card = _card(t.name, env_id, kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command, baseline)
-        val = validation_result(folder, card)
+        val = validation_result(folder, card, episodes=validation_episodes)
         history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse, **val})
         if best is None or val["cost_mean"] < best[1]["cost_mean"]:
             best = (folder, val, it + 1)

@@ -26,7 +26,7 @@ from typing import cast
 
 import numpy as np
 
-from millvib_env._checks import shown, shown_path
+from millvib_env._checks import integer, shown, shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
 from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
@@ -260,7 +260,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
           progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last",
-          backend: str = "auto") -> dict:
+          backend: str = "auto", validation_episodes: int = N_VALIDATION) -> dict:
     """Train one agent; returns its model card (also written to the run folder).
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
@@ -270,7 +270,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" or "sbx"
     (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`resolved_backend`: sbx for SAC where it
     is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
-    card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX."""
+    card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX. The card's
+    validation scores the agent on the first `validation_episodes` of the task's validation plants (default 40,
+    the shipped agents' figure; fewer for a quick trial, whose card then says so)."""
     if select not in ("last", "best", "trained"):
         raise ValueError(f"--select {shown(select)} is invalid: 'last', 'best' or 'trained'")
     import torch
@@ -285,6 +287,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     the_task = task
     _check_id_runs_task(env_id, the_task)
+    validation_episodes = integer("--validation-episodes", validation_episodes, lo=1,
+                                  hi=len(the_task.seeds["validation"]))  # never a held-out plant
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
     hp = load_hyperparams(algo, env_id, config)
     n_envs = int(hp.pop("n_envs"))
@@ -352,7 +356,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     if note:
         card["note"] = note
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
-    card["validation"] = validation_result(run, card)
+    card["validation"] = validation_result(run, card, episodes=validation_episodes)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if save_dir:
         _save_agent(Path(save_dir), run, card)
@@ -410,15 +414,15 @@ def _save_agent(dest: Path, run: Path, card: dict) -> None:
         write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
 
 
-def validation_result(folder: str | Path, card: dict | None = None) -> dict:
-    """Mean severity, tracking and cost of the agent in `folder` on the validation plants."""
+def validation_result(folder: str | Path, card: dict | None = None, episodes: int = N_VALIDATION) -> dict:
+    """Mean severity, tracking and cost of the agent in `folder` on the first `episodes` validation plants."""
 
     folder = Path(folder)
     if card is not None:  # the card is written after this: give the loader what it needs
         write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
     agent = AgentPolicy(folder)
     first = agent.task.seeds["validation"].start
-    seeds = list(range(first, first + N_VALIDATION))
+    seeds = list(range(first, first + episodes))
     summary = summarize(run_episodes(agent, seeds, task=agent.task))
     keep = ("severity_mean", "tracking_rms_um_mean", "cost_mean", "cost_cvar20", "diverged_rate", "episodes")
     return {"seeds": f"{seeds[0]}-{seeds[-1]}", **{k: summary[k] for k in keep}}
@@ -461,14 +465,14 @@ def train_from_cli(args) -> int:
                                  "put it outside --log-dir's run folders")
     for flag, value in (("--n-timesteps", args.n_timesteps), ("--eval-freq", args.eval_freq),
                         ("--n-eval-episodes", args.n_eval_episodes), ("--checkpoint-freq", args.checkpoint_freq),
-                        ("--jobs", args.jobs)):
+                        ("--jobs", args.jobs), ("--validation-episodes", args.validation_episodes)):
         if value is not None and value < 1:
             raise ValueError(f"{flag} {value} is invalid: a whole number >= 1")
     common = dict(algo=args.algo, env_id=args.env, task=args.task, n_timesteps=args.n_timesteps, config=args.config,
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
                   command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select,
-                  backend=args.backend)
+                  backend=args.backend, validation_episodes=args.validation_episodes)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
