@@ -34,3 +34,13 @@ def tune_in_a_shared_study(storage: str, study_name: str, n_trials: int) -> dict
 
     return tune_optuna([10100, 10101], task=get_task("startup"), storage=storage, study_name=study_name,
                        n_trials=n_trials)
+
+
+def numba_in_a_worker() -> tuple:
+    """At its job's start: whether this worker already holds the compiled plant function (numba's compiler
+    context set up by the fork server), and whether numba's thread pool has started (it must not be inherited)."""
+    from numba.np.ufunc import parallel
+
+    from millvib_env.plant.model import plant_rhs
+
+    return len(plant_rhs.overloads) > 0, bool(parallel._is_initialized)

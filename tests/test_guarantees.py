@@ -100,6 +100,15 @@ def test_a_pool_that_asks_for_more_modules_gets_workers_that_have_them_imported(
     assert declared not in distributed._expected
 
 
+def test_a_worker_starts_with_numbas_compiler_context_but_no_thread_pool():
+    """The fork server loads one serial compiled function (`millvib_env._fork_server`), so a worker does not set up
+    numba's compiler context again; numba's thread pool is never started in the server, so none is inherited."""
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import numba_in_a_worker
+
+    assert run_jobs(numba_in_a_worker, [{}] * 2, processes=2) == [(True, False)] * 2
+
+
 def test_a_worker_runs_in_the_callers_environment_and_folder_as_they_are_at_each_pool(tmp_path, monkeypatch):
     """The workers are forks of a fork server that started with the first pool (`distributed._pool_context`):
     each still sees the caller's environment variables and working folder of the moment, and ignores Ctrl-C."""

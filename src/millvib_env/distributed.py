@@ -108,7 +108,8 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again: 1-3 CPU-s each,
     at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
     the first pool of this process, that imports once the package, the module of the pool's function, the
-    modules in `preload` (torch for training) and those a command declared (`expect_modules`); every worker
+    modules in `preload` (torch for training) and those a command declared (`expect_modules`), and sets up
+    numba's compiler context (`millvib_env._fork_server`); every worker
     after that is a fork of it, so it starts with those modules imported and inherits no thread pool, torch
     state or open file of this process (the server runs none). A later pool that asks for a module the server
     has not imported (training after a benchmark of baselines, in one session) restarts it with every module
@@ -126,7 +127,8 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
         stop = getattr(forkserver._forkserver, "_stop", None)  # CPython's own (3.8-3.13); else workers import
         if stop is not None:
             stop()  # the next pool's first worker starts a new server; running workers are not touched
-    _server_modules.update(["millvib_env", fn.__module__, *preload])
+    # millvib_env._fork_server sets up numba's compiler context in the server, so no worker pays it
+    _server_modules.update(["millvib_env", "millvib_env._fork_server", fn.__module__, *preload])
     ctx.set_forkserver_preload(sorted(_server_modules))  # read when the server starts
     return ctx
 
