@@ -224,12 +224,15 @@ def test_default_benchmark_covers_the_shipped_agents():
 
 
 @pytest.mark.slow
-def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path):
+def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path, capsys):
     cfg = tmp_path / "ppo.yml"
     cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
     card = train("ppo", task="rolling", seed=1, config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128,
-                 n_eval_episodes=2, checkpoint_freq=128, progress=False, save_dir=str(tmp_path / "agent"),
+                 n_eval_episodes=2, checkpoint_freq=128, progress=True, save_dir=str(tmp_path / "agent"),
                  validation_episodes=QUICK_VALIDATION)
+    said = capsys.readouterr().err  # where it writes, as it starts; what the silent seconds at the end are
+    assert f"logs and checkpoints in {tmp_path / 'runs'}" in said and f"the agent to {tmp_path / 'agent'}" in said
+    assert "on rolling's validation plants 115000-115003" in said
     assert card["task"] == "rolling" and card["env_kwargs"]["config"] == "rolling"
     assert card["validation"]["seeds"] == "115000-115003" and card["validation"]["episodes"] == QUICK_VALIDATION
     with pytest.raises(ValueError, match="trained on task 'rolling'"):

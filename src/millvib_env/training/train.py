@@ -356,6 +356,10 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     if note:
         card["note"] = note
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
+    if progress:  # a few seconds with no bar: say what they are
+        first = the_task.seeds["validation"].start
+        print(f"train: scoring the agent for its card on {the_task.name}'s validation plants {first}-"
+              f"{first + validation_episodes - 1}", file=sys.stderr, flush=True)
     card["validation"] = validation_result(run, card, episodes=validation_episodes)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if save_dir:
