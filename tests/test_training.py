@@ -224,6 +224,7 @@ def test_default_benchmark_covers_the_shipped_agents():
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:rich is experimental")  # SB3's progress bar (tqdm.rich) says so at every start
 def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path, capsys):
     cfg = tmp_path / "ppo.yml"
     cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]))
