@@ -47,6 +47,30 @@ def test_the_compiled_reference_is_scipys_solve_ivp_lsoda_on_the_paper_cases(pap
         assert peak_error(a, b) <= 1e-6, label
 
 
+def test_the_compiled_rk45_is_scipys_rk45(paper_cases):
+    # the solver study's method: scipy's RK45 (ode45's pair) step for step in compiled code. Its coefficients are
+    # scipy's; over the first 20 ms (about 100 steps) it takes the steps solve_ivp takes and gives its samples to
+    # rounding. Later, where the loop amplifies rounding (the LuGre stick; at KP = 3.9e6 and ode45's defaults within
+    # these 20 ms), the two part as two processors would, so a step count is compared within two attempts and the
+    # states within 1e-8 of their range (2e-12 here)
+    from scipy.integrate import RK45
+
+    from millvib_env.plant import rk45
+
+    for name in ("A", "B", "C", "E", "P"):
+        assert np.array_equal(getattr(rk45, name), getattr(RK45, name)), name
+    assert RK45.error_estimator_order == 4 and RK45.n_stages == 6
+    for label, params, gains in (paper_cases[0], paper_cases[4], paper_cases[5]):  # nominal and the two leakages
+        for rtol, options in ((1e-3, {"atol": 1e-6}), (1e-6, {"atol": 1e-9, "max_step": 2e-3})):
+            a = simulate(params, gains, 0.02, method="reference", ivp_method="RK45", rtol=rtol, ivp_options=options)
+            b = simulate(params, gains, 0.02, method="reference", ivp_method="RK45-compiled", rtol=rtol,
+                         ivp_options=options)
+            assert not a.diverged and not b.diverged
+            assert abs(int(a.n_steps) - int(b.n_steps)) <= 12, (label, rtol)
+            span = np.max(np.abs(a.states), axis=0)
+            assert np.all(np.abs(a.states - b.states) <= 1e-8 * span), (label, rtol)
+
+
 def test_fast_matches_reference_on_the_paper_cases(paper_cases):
     params = [p for _, p, _ in paper_cases]
     gains = [g for _, _, g in paper_cases]
@@ -89,15 +113,16 @@ def test_batch_equals_one_at_a_time():
         assert np.array_equal(batch[i].x, simulate(ps[i], gs[i], 0.05).x)
 
 
-@pytest.mark.parametrize("method, ivp_method", [("fast", "odeint"), ("reference", "odeint"), ("reference", "LSODA")])
+@pytest.mark.parametrize("method, ivp_method", [("fast", "odeint"), ("reference", "odeint"), ("reference", "LSODA"),
+                                                ("reference", "RK45-compiled")])
 def test_leaving_the_stroke_is_flagged_not_nan(method, ivp_method):
     # a soft stand, 2 mm of stroke left above the start and a 5 mm set-point: the piston hits its end
     p = MillParams(k1=1e7, L=0.15 + 2e-3)
     r = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method, ivp_method=ivp_method)
     assert r.diverged and 0 < r.t_diverged < 0.05
-    if method == "reference":  # the compiled driver hands the segment that leaves to solve_ivp's event location
+    if method == "reference":  # a compiled driver hands the segment that leaves to solve_ivp's event location
         other = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method,
-                         ivp_method="LSODA" if ivp_method == "odeint" else "odeint")
+                         ivp_method={"odeint": "LSODA", "LSODA": "odeint", "RK45-compiled": "RK45"}[ivp_method])
         assert r.t_diverged == pytest.approx(other.t_diverged, abs=1e-6)
     before = r.t < r.t_diverged - 1e-4
     assert np.all(np.isfinite(r.x[before]))
@@ -123,6 +148,10 @@ def test_setpoint_step_as_function_and_array_agree():
     ({"t_end": 0.1, "method": "reference", "ivp_method": "ode45"}, "ivp_method"),
     ({"t_end": 0.1, "x0": 0.5}, "x0"), ({"t_end": 0.1, "xd": np.zeros(7)}, "xd"),
     ({"t_end": 0.1, "xd": float("nan")}, "xd"),
+    ({"t_end": 0.1, "method": "reference", "ivp_options": {"atol": -1e-6}}, "atol"),
+    ({"t_end": 0.1, "method": "reference", "ivp_options": {"atol": [1e-6] * 3}}, "atol"),
+    ({"t_end": 0.1, "method": "reference", "ivp_options": {"max_step": 0.0}}, "max_step"),
+    ({"t_end": 0.1, "method": "reference", "ivp_options": {"rtol": 1e-3}}, "unknown"),
 ])
 def test_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):

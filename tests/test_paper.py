@@ -118,3 +118,21 @@ def test_reproduce_without_figures_writes_the_numbers_alone(tmp_path):
     assert sorted(p.name for p in (tmp_path / "a").iterdir() if not p.name.startswith(".")) == \
         ["paper_cases.csv", "summary.json"]
     assert len(json.loads((tmp_path / "a" / "summary.json").read_text())["cases"]) == 9
+
+
+def test_reproduce_runs_the_motion_map_on_a_thread_with_the_numbers_of_a_serial_run(tmp_path, monkeypatch):
+    """`reproduce` simulates the motion map's plants on a thread beside its other steps (the kernels release the
+    GIL): its map is the one the same plants give serially in the caller's thread, and its files are listed in
+    the paper's order."""
+    import millvib_env.analysis.paper as paper
+    from millvib_env import threads
+
+    summary = paper.reproduce(tmp_path / "a", t_end=0.1, map_resolution=3, progress=False, solver_study=False,
+                              figures=False)
+    assert [p.rsplit("/", 1)[-1] for p in summary["files"]] == \
+        ["paper_cases.csv", "motion_map_c1_kp.csv", "stability_map.csv", "summary.json"]
+    monkeypatch.setenv(threads.THREADS_ENV, "1")
+    (tmp_path / "b").mkdir()
+    paper._motion_map(tmp_path / "b", paper._motion_runs(0.1, 3, 7), figure=False)
+    name = "motion_map_c1_kp.csv"
+    assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()

@@ -33,6 +33,21 @@ def test_serial_and_threaded_kernels_give_the_same_episodes(monkeypatch):
     assert all(np.array_equal(a, b) for a, b in zip(serial, threaded))
 
 
+def test_serial_and_threaded_batch_simulations_give_the_same_runs(monkeypatch):
+    # the threaded batch deals the plants out in turn (thread j runs j, j + T, ...): 11 plants, shares unequal
+    from millvib_env import MillParams, PIDGains
+    from millvib_env.plant.integrate import simulate_batch
+
+    params = [MillParams(c1=c) for c in np.geomspace(1.25e5, 2.25e6, 11)]
+    gains = [PIDGains(kp, 1e-3) for kp in np.geomspace(1e5, 5e6, 11)]
+    monkeypatch.setenv(threads.THREADS_ENV, "1")
+    serial = simulate_batch(params, gains, 0.05)
+    monkeypatch.setenv(threads.THREADS_ENV, "2")
+    threaded = simulate_batch(params, gains, 0.05)
+    assert np.array_equal(serial.states, threaded.states, equal_nan=True)
+    assert np.array_equal(serial.n_steps, threaded.n_steps)
+
+
 @pytest.mark.slow
 def test_fork_vector_env_steps_after_the_parent_used_threads_and_torch():
     code = textwrap.dedent("""

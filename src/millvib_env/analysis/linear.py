@@ -276,12 +276,24 @@ def jacobian(params: MillParams, gains: PIDGains, op: OperatingPoint) -> np.ndar
     """
     _check_plant(params, gains)
     instance("op", op, OperatingPoint, "an OperatingPoint (operating_point(params, gains))")
-    J = _numerical_jacobian(_mean_pack(params), drive_vector(gains, xd=op.xd), op.y, state_scale(params),
+    J = _numerical_jacobian(_mean_pack(params), drive_vector(gains, xd=op.xd), op.y, _state_scale(params),
                             op.friction)
+    return J[_kept(params.ideal_valve, op.integral == "settled" and gains.ki != 0.0)]
+
+
+@lru_cache(maxsize=4)
+def _kept(ideal_valve: bool, with_integral: bool) -> tuple[np.ndarray, ...]:
+    """`np.ix_` of the states `jacobian` keeps: all but z, uI unless the integral is settled and acts, and the
+    spool's states of an ideal valve. Shared: read it, never write it."""
     keep = [i for i in range(NY)
-            if i != IZ and not (i == IUI and (op.integral == "frozen" or gains.ki == 0.0))
-            and not (i in VALVE_STATES and params.ideal_valve)]
-    return J[np.ix_(keep, keep)]
+            if i != IZ and not (i == IUI and not with_integral) and not (i in VALVE_STATES and ideal_valve)]
+    return np.ix_(keep, keep)
+
+
+@lru_cache(maxsize=64)
+def _state_scale(params: MillParams) -> np.ndarray:
+    """`state_scale` of `params`, kept per plant as `_mean_pack` is. Shared: read it, never write it."""
+    return state_scale(params)
 
 
 @dataclass(frozen=True)

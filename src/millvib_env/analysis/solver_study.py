@@ -3,10 +3,11 @@
 The paper integrated with MATLAB's ode45 (Dormand-Prince 5(4)), whose defaults are RelTol 1e-3 and
 AbsTol 1e-6 on every state. 1e-6 m is a fifth of the bristle deflection fs / sigma0 = 5e-6 m, so the
 LuGre state is barely controlled at those settings. This study integrates the nine cases with
-scipy's RK45 (the same Dormand-Prince pair) at those defaults, with Simulink's default maximum step
-(1/50 of the run), and down a ladder of tighter tolerances to the converged reference (LSODA,
-rtol 1e-10, atol 1e-10 of each state's scale), and measures the tail of each run (its last 40 %):
-peak-to-peak displacement, dominant frequency and kind of motion (`classify_motion`).
+scipy's RK45 (the same Dormand-Prince pair, run step for step in compiled code: `plant.rk45`) at those
+defaults, with Simulink's default maximum step (1/50 of the run), and down a ladder of tighter tolerances
+to the converged reference (LSODA, rtol 1e-10, atol 1e-10 of each state's scale), and measures the tail
+of each run (its last 40 %): peak-to-peak displacement, dominant frequency and kind of motion
+(`classify_motion`).
 
 Verdict per case, from amplitudes only: an **artefact** of the solver if the default run's tail is at
 least ten times the converged one, falls as the tolerance tightens and the converged run decays; a
@@ -49,12 +50,12 @@ class SolverSetting:
 
 
 #: MATLAB's defaults first, then tighter, then the converged reference
-SOLVERS = (
-    SolverSetting("ode45 default", "RK45", 1e-3, 1e-6),
-    SolverSetting("ode45 default, Simulink max step", "RK45", 1e-3, 1e-6, 1.0 / 50.0),
-    SolverSetting("RK45 1e-4", "RK45", 1e-4, 1e-7),
-    SolverSetting("RK45 1e-5", "RK45", 1e-5, 1e-8),
-    SolverSetting("RK45 1e-6", "RK45", 1e-6, 1e-9),
+SOLVERS = (  # "RK45-compiled": scipy's RK45 step for step, in compiled code (`plant.rk45`)
+    SolverSetting("ode45 default", "RK45-compiled", 1e-3, 1e-6),
+    SolverSetting("ode45 default, Simulink max step", "RK45-compiled", 1e-3, 1e-6, 1.0 / 50.0),
+    SolverSetting("RK45 1e-4", "RK45-compiled", 1e-4, 1e-7),
+    SolverSetting("RK45 1e-5", "RK45-compiled", 1e-5, 1e-8),
+    SolverSetting("RK45 1e-6", "RK45-compiled", 1e-6, 1e-9),
     SolverSetting("converged (LSODA 1e-10)", "odeint", 1e-10, None),  # ODEPACK's LSODA, compiled (`simulate`)
 )
 

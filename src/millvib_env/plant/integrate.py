@@ -5,7 +5,8 @@
 * ``method="reference"``: LSODA at tight tolerances. By default ODEPACK's LSODA runs each set-point
   segment whole in compiled code (`scipy.integrate.odeint`), calling the compiled right-hand side;
   ``ivp_method`` names a `scipy.integrate.solve_ivp` method instead ("LSODA", the same solver driven
-  a step at a time from Python, 5-10x slower; "RK45", the paper's ode45; Radau, BDF, DOP853, RK23).
+  a step at a time from Python, 5-10x slower; "RK45", the paper's ode45; Radau, BDF, DOP853, RK23), or
+  "RK45-compiled": scipy's RK45 step for step in compiled code (`rk45.py`, the solver study's method).
 
 Both call the same right-hand side (`model.plant_rhs`), sample on the same grid
 ``t_k = k * dt_out`` and return the same `SimResult`. A run that leaves the physical envelope
@@ -24,9 +25,9 @@ from typing import TYPE_CHECKING, Callable, Sequence, Union
 
 import numpy as np
 
-from millvib_env._checks import as_float, choice, instance, real, shown
+from millvib_env._checks import as_float, choice, instance, real, reals, shown
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
-from millvib_env.plant import kernel
+from millvib_env.plant import kernel, rk45
 from millvib_env.plant.model import (AUX, AUX_NAMES, C_XD, IPL, IX, NAUX, NY, P_L, P_L1, STATE_NAMES, STATES,
                                      PlantChange, drive_vector, initial_state, pack, state_scale)
 from millvib_env.severity import Quantity, iso_zone, vibration_severity
@@ -42,7 +43,8 @@ DEFAULT_DT_OUT = 1e-4  # s: 10 kHz samples, Nyquist 5 kHz, well above the 1 kHz 
 P_MAX_FACTOR = 10.0  # |pL| above 10 x the mean supply pressure is reported as divergence
 MAX_STEPS_PER_SECOND = 2_000_000
 _ODEINT_MXSTEP = 50_000  # LSODA's steps per output interval before it stops (then solve_ivp takes the segment)
-IVP_METHODS = ("odeint", "LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF")  # odeint: ODEPACK's LSODA, whole
+# odeint: ODEPACK's LSODA, each segment whole; RK45-compiled: scipy's RK45 step for step in compiled code (`rk45`)
+IVP_METHODS = ("odeint", "RK45-compiled", "LSODA", "RK45", "RK23", "DOP853", "Radau", "BDF")
 
 
 @dataclass
@@ -325,8 +327,9 @@ def simulate(params: MillParams | None = None, gains: PIDGains | None = None, t_
     u_ext, pid_on : constant extra valve command (V) and whether the PID acts.
     y0 : full initial state (`model.STATES`: x, v, pL, z, uI, xs, vs), overriding x0.
     change : a change of c1 and Ct during the run (`PlantChange`), integrated by the same equations.
-    ivp_method : reference method only: "odeint" (ODEPACK's LSODA, each segment in compiled code) or a
-        `solve_ivp` method ("LSODA", "RK45" = MATLAB's ode45, "RK23", "DOP853", "Radau", "BDF").
+    ivp_method : reference method only: "odeint" (ODEPACK's LSODA, each segment in compiled code),
+        "RK45-compiled" (scipy's RK45 step for step in compiled code, `plant.rk45`) or a `solve_ivp` method
+        ("LSODA", "RK45" = MATLAB's ode45, "RK23", "DOP853", "Radau", "BDF").
     ivp_options : reference method only: ``atol`` (scalar or per state, replacing rtol * state
         scale) and ``max_step`` (s), e.g. MATLAB ode45's defaults ``{"atol": 1e-6}`` with
         ``rtol=1e-3``.
@@ -404,6 +407,16 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
         unknown = set(options) - {"atol", "max_step"}
         if unknown:
             raise ValueError(f"ivp_options: unknown key(s) {sorted(unknown, key=repr)}; allowed: atol, max_step")
+        if "atol" in options:
+            atol_given = options["atol"]
+            options["atol"] = (real("ivp_options['atol']", atol_given, lo=0.0, lo_open=True)
+                               if np.ndim(atol_given) == 0 else
+                               np.array(reals("ivp_options['atol']", atol_given, lo=0.0, lo_open=True)))
+            if np.ndim(options["atol"]) == 1 and len(options["atol"]) != NY:
+                raise ValueError(f"ivp_options['atol'] has {len(options['atol'])} entries; allowed: one number or "
+                                 f"one per state ({NY})")
+        if "max_step" in options:
+            options["max_step"] = real("ivp_options['max_step']", options["max_step"], lo=0.0, lo_open=True)
         YS, status, t_fail, n_steps = _reference_batch(P, C, Y0, XD, t, rtol, p_list, ivp_method,
                                                        p_max, progress, options)
     else:
@@ -472,6 +485,8 @@ def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
 
     atol = options.get("atol", rtol * state_scale(params))
     extra = {"max_step": float(options["max_step"])} if "max_step" in options else {}
+    atol_vector = np.ascontiguousarray(np.broadcast_to(np.asarray(atol, dtype=float), (NY,)))
+    max_step = float(options.get("max_step", np.inf))
     lo, hi = -p[P_L1], p[P_L] - p[P_L1]
 
     def inside_envelope(_t, y, c):  # > 0 while inside: stroke margin and pressure margin
@@ -494,6 +509,14 @@ def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
             j1 += 1
         c = c0.copy()
         c[C_XD] = xd[j0]
+        if ivp_method == "RK45-compiled":
+            code, evals = rk45.rk45_segment(p, c, y, float(t[j0]), t[j0 + 1:j1 + 1], rtol, atol_vector,
+                                            max_step, lo, hi, p_max, out[j0 + 1:j1 + 1])
+            if code == rk45.DONE:
+                n_evals += evals
+                y = out[j1].copy()
+                j0 = j1
+                continue
         if ivp_method == "odeint":
             seg = _odeint_segment(p, c, y, t[j0:j1 + 1], rtol, atol, lo, hi, p_max, options)
             if seg is not None:
@@ -503,7 +526,8 @@ def _reference_one(p, c0, y0, xd, t, rtol, params, ivp_method, p_max, options):
                 j0 = j1
                 continue
         # a solve_ivp method, or the segment in which the state leaves the envelope: the event finds when
-        sol = solve_ivp(rhs, (t[j0], t[j1]), y, method="LSODA" if ivp_method == "odeint" else ivp_method,
+        fallback = {"odeint": "LSODA", "RK45-compiled": "RK45"}
+        sol = solve_ivp(rhs, (t[j0], t[j1]), y, method=fallback.get(ivp_method, ivp_method),
                         t_eval=t[j0 + 1:j1 + 1], rtol=rtol, atol=atol, args=(c,), events=inside_envelope, **extra)
         n_evals += sol.nfev
         m = sol.y.shape[1]
