@@ -439,6 +439,22 @@ def test_ctrl_c_while_the_package_loads_is_one_line_not_a_traceback():
     assert run.stderr.strip().splitlines() == ["millvib: interrupted while loading"]
 
 
+def test_the_launcher_turns_numpys_huge_pages_off_before_numpy_loads_unless_the_user_chose():
+    """`millvib` sets NUMPY_MADVISE_HUGEPAGE=0 before numpy loads (`millvib_cli._process_defaults`); a user's own
+    setting is kept."""
+    code = ("import os\n"
+            "from millvib_cli import _process_defaults\n"
+            "_process_defaults()\n"
+            "import numpy\n"
+            "print(os.environ['NUMPY_MADVISE_HUGEPAGE'], numpy._core.multiarray._get_madvise_hugepage())\n")
+    for given, want in ((None, "0 False"), ("1", "1 True")):
+        env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+        if given is not None:
+            env["NUMPY_MADVISE_HUGEPAGE"] = given
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+        assert run.stdout.split() == want.split(), run.stderr
+
+
 @pytest.mark.slow  # seconds of work: the full suite runs it, the quick subset does not
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process table from /proc")
 def test_sigterm_and_a_group_ctrl_c_end_a_command_and_its_workers_in_one_line(tmp_path):

@@ -101,3 +101,20 @@ def test_the_compiled_operating_point_is_scipys_brentq_on_the_same_residual(fric
         root = operating_point(params, gains, xd, friction=friction, integral=integral).y[which]
         assert abs(root - expected) <= 1e-15 + 1e-13 * abs(expected), (params.c1, params.Ct, gains.kp)
     assert found >= 4
+
+
+@pytest.mark.parametrize("friction", ["stick", "sliding"])
+def test_the_critical_kp_search_evaluates_the_spectral_abscissa(friction):
+    # the search makes what does not depend on KP once and linearises in one compiled call: the same numbers as
+    # spectral_abscissa at each KP (an ideal valve and one with dynamics; a KP whose loop has no operating point
+    # counts as unstable, 1.0)
+    from millvib_env.analysis.linear import _abscissa_of_log_kp, spectral_abscissa
+
+    for params in (MillParams(c1=2.25e5, Ct=5e-10), MillParams(valve_wn_hz=100.0)):
+        g = _abscissa_of_log_kp(params, 1e-3, 0.0, 0.0, friction)
+        for log_kp in np.linspace(3.0, 10.0, 9):
+            try:
+                want = spectral_abscissa(params, PIDGains(10.0**log_kp, 1e-3), friction=friction)
+            except RuntimeError:
+                want = 1.0
+            assert g(log_kp) == want, (params, log_kp)

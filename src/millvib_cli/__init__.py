@@ -31,8 +31,20 @@ def _leave(status: int) -> None:
     os._exit(status)
 
 
+def _process_defaults() -> None:
+    """Settings a command's process takes before numpy loads, each unless the user set it.
+
+    ``NUMPY_MADVISE_HUGEPAGE=0``: numpy asks the kernel for huge pages on every array of 4 MB or more, and where
+    the kernel's transparent huge pages are on request with compaction on request (the setting of many Linux
+    machines), a fault in such an array may compact memory first. The commands write their large arrays (a map's
+    runs: 141 MB for `reproduce`'s motion map) once and read them a few times: on this project's 2-core machine
+    that array cost 0.7-1.2 s of kernel time with huge pages and 0.04 s without (docs/performance.md)."""
+    os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
+
+
 def main() -> int:
     got = []
+    _process_defaults()
 
     def _terminated(signum, frame):
         got.append(signum)

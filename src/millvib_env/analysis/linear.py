@@ -37,8 +37,8 @@ from millvib_env._checks import instance, integer, real, reals, shown
 from millvib_env.distributed import run_jobs
 from millvib_env.params import MillParams, PIDGains
 from millvib_env.plant.kernel import rhs_vector
-from millvib_env.plant.model import (A_XV, C_DFL, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES, VALVE_STATES,
-                                     balanced_pressure, drive_vector, pack, plant_rhs, settled_state,
+from millvib_env.plant.model import (A_XV, C_DFL, C_KP, C_XD, IPL, IUI, IV, IX, IXS, IZ, NAUX, NY, STATE_NAMES,
+                                     VALVE_STATES, balanced_pressure, drive_vector, pack, plant_rhs, settled_state,
                                      state_scale)
 
 __all__ = ["OperatingPoint", "operating_point", "jacobian", "spectral_abscissa", "critical_kp",
@@ -208,6 +208,45 @@ def _jacobian_at(y0, p, c, scale, sliding, stick):
     return J
 
 
+@njit(cache=True)
+def _operating_state(which, y, p, c, center, lo, hi, steps, ideal_valve):
+    """`y` at the operating point: its state `which` the root of the flow balance (bracketed in (lo, hi) from
+    `center`), pL from the force balance and, for a valve with dynamics, the spool at its commanded opening.
+    Returns (state, root, outcome)."""
+    root, outcome = _operating_root(which, y, p, c, center, lo, hi, steps)
+    y_op = y.copy()
+    if outcome != _FOUND:
+        return y_op, root, outcome
+    y_op[which] = root
+    y_op[IPL] = balanced_pressure(y_op, p, c)
+    if not ideal_valve:
+        aux = np.empty(NAUX)
+        plant_rhs(0.0, y_op, p, c, np.empty(NY), aux)
+        y_op[IXS] = aux[A_XV]
+    return y_op, root, outcome
+
+
+@njit(cache=True)
+def _loop_jacobian(y, p_ideal, p_mean, c, lo, hi, steps, ideal_valve, scale, sliding, stick):
+    """`operating_point` (the integral frozen, the root in x from the set-point) and `jacobian` there in one call,
+    the same operations: a critical-KP search linearises one plant some 36 times. Returns (J over all states,
+    root, outcome)."""
+    y_op, root, outcome = _operating_state(IX, y, p_ideal, c, c[C_XD], lo, hi, steps, ideal_valve)
+    if outcome != _FOUND:
+        return np.zeros((NY, NY)), root, outcome
+    return _jacobian_at(y_op, p_mean, c, scale, sliding, stick), root, outcome
+
+
+def _raise_unless_found(outcome: int, root: float) -> None:
+    """`_operating_root`'s failures as the errors scipy's brentq (which it follows) raises."""
+    if outcome == _NO_BRACKET:
+        raise RuntimeError("no operating point found: the valve cannot hold the load against the leakage")
+    if outcome == _NAN:
+        raise ValueError(f"The function value at x={root} is NaN; solver cannot continue.")
+    if outcome == _NO_CONVERGENCE:
+        raise RuntimeError(f"Failed to converge after {_ROOT_MAXITER} iterations, value is {root}.")
+
+
 def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, friction: Friction = "stick",
                     integral: Literal["frozen", "settled"] = "frozen", uI: float = 0.0) -> OperatingPoint:
     """Equilibrium at rest (v = 0) of the loop with mean supply pressure.
@@ -227,23 +266,9 @@ def operating_point(params: MillParams, gains: PIDGains, xd: float = 0.0, *, fri
     y = np.zeros(NY)
     y[IX], y[IZ], y[IUI] = xd, 0.0 if friction == "stick" else params.fs / params.sigma0, uI
     which = IX if integral == "frozen" else IUI
-    if integral == "frozen":
-        root, outcome = _operating_root(which, y, p_mean, c, xd, -params.L1, params.L - params.L1, _BRACKET_STEPS)
-    else:
-        root, outcome = _operating_root(which, y, p_mean, c, 0.0, -1e6, 1e6, _BRACKET_STEPS)
-    if outcome == _NO_BRACKET:
-        raise RuntimeError("no operating point found: the valve cannot hold the load against the leakage")
-    if outcome == _NAN:
-        raise ValueError(f"The function value at x={root} is NaN; solver cannot continue.")
-    if outcome == _NO_CONVERGENCE:
-        raise RuntimeError(f"Failed to converge after {_ROOT_MAXITER} iterations, value is {root}.")
-    y_op = y.copy()
-    y_op[which] = root
-    y_op[IPL] = balanced_pressure(y_op, p_mean, c)
-    if not params.ideal_valve:
-        aux = np.empty(NAUX)
-        plant_rhs(0.0, y_op, p_mean, c, np.empty(NY), aux)
-        y_op[IXS] = aux[A_XV]
+    center, lo, hi = (xd, -params.L1, params.L - params.L1) if integral == "frozen" else (0.0, -1e6, 1e6)
+    y_op, root, outcome = _operating_state(which, y, p_mean, c, center, lo, hi, _BRACKET_STEPS, params.ideal_valve)
+    _raise_unless_found(outcome, root)
     return OperatingPoint(y=y_op, xd=xd, friction=friction, integral=integral)
 
 
@@ -405,6 +430,32 @@ def spectral_abscissa(params: MillParams, gains: PIDGains, xd: float = 0.0, *, f
     return float(np.max(np.linalg.eigvals(jacobian(params, gains, op)).real))
 
 
+def _abscissa_of_log_kp(params: MillParams, ki: float, kd: float, xd: float, friction: Friction):
+    """g(log10 KP): `spectral_abscissa` of the loop at that KP (the integral frozen), the same numbers, with what
+    does not depend on KP (the packed plants, the drive, the state scale, the kept states) made once; 1.0
+    (unstable) where the loop has no operating point."""
+    xd = _check_xd(params, xd)
+    if friction not in ("stick", "sliding"):
+        raise ValueError(f"friction = {shown(friction)} is invalid: use 'stick' or 'sliding'")
+    p_ideal, p_mean = _mean_pack(_ideal(params)), _mean_pack(params)
+    c = drive_vector(PIDGains(1.0, ki, kd), xd=xd)  # its KP set at each call
+    y = np.zeros(NY)
+    y[IX], y[IZ] = xd, 0.0 if friction == "stick" else params.fs / params.sigma0
+    lo, hi = -params.L1, params.L - params.L1
+    scale, kept = _state_scale(params), _kept(params.ideal_valve, False)
+
+    def g(log_kp: float) -> float:
+        c[C_KP] = PIDGains(10.0**log_kp, ki, kd).kp
+        J, root, outcome = _loop_jacobian(y, p_ideal, p_mean, c, lo, hi, _BRACKET_STEPS, params.ideal_valve, scale,
+                                          friction == "sliding", friction == "stick")
+        if outcome in (_NO_BRACKET, _NO_CONVERGENCE):
+            return 1.0  # no equilibrium: count as unstable
+        _raise_unless_found(outcome, root)
+        return float(np.max(np.linalg.eigvals(J[kept]).real))
+
+    return g
+
+
 def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, friction: Friction = "stick",
                 xd: float = 0.0, kp_range: tuple[float, float] = (1e3, 1e10)) -> float:
     """KP (V/m) at which the loop's least-damped eigenvalue crosses into the right half-plane.
@@ -414,13 +465,7 @@ def critical_kp(params: MillParams, ki: float = 1e-3, kd: float = 0.0, *, fricti
     _check_plant(params)
     ki, kd, xd = real("ki", ki, lo=0.0), real("kd", kd, lo=0.0), real("xd", xd)
     kp_lo, kp_hi = reals("kp_range", kp_range, lo=0.0, lo_open=True, min_len=2)[:2]
-    def g(log_kp: float) -> float:
-        try:
-            s = spectral_abscissa(params, PIDGains(10.0**log_kp, ki, kd), xd, friction=friction)
-        except RuntimeError:
-            return 1.0  # no equilibrium: count as unstable
-        return s
-
+    g = _abscissa_of_log_kp(params, ki, kd, xd, friction)
     lo, hi = math.log10(kp_lo), math.log10(kp_hi)
     if g(lo) > 0:
         return 0.0

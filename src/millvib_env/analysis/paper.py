@@ -27,7 +27,6 @@ import numpy as np
 from millvib_env._checks import integer
 from millvib_env._figures import panel_grid
 from millvib_env._paths import atomic_folder, save_figure, write_text_atomic
-from millvib_env.analysis.dynamics import classify_motion
 from millvib_env.analysis.linear import Friction, critical_kp, stability_maps
 from millvib_env.analysis.studies import PAPER_STUDIES, PaperCase, PaperStudy
 from millvib_env.distributed import expect_modules, run_jobs
@@ -61,6 +60,9 @@ class CaseResult:
 
 def run_studies(t_end: float = 1.0, method: str = "fast") -> tuple[list[CaseResult], dict[str, list[SimResult]]]:
     """Simulate the nine cases; returns per-case numbers and the runs, keyed by study."""
+    # here: `reproduce` starts its motion map's plants before this import (scipy.signal, about half a second)
+    from millvib_env.analysis.dynamics import classify_motion
+
     runs: dict[str, list[SimResult]] = {}
     results: list[CaseResult] = []
     for study in PAPER_STUDIES:
@@ -128,33 +130,35 @@ def _plot_severity(study: PaperStudy, results: list[CaseResult], out: Path) -> P
 _MOTION_KINDS = ("decay", "periodic", "quasi-periodic", "diverged")
 
 
-def _motion_runs(t_end: float, n_c1: int, n_kp: int) -> tuple[np.ndarray, np.ndarray, BatchResult]:
-    """The motion map's plants over (c1, KP) from the paper's 1 mm start, Ct nominal: compiled work that releases
-    the GIL, so `reproduce` runs it on a thread beside its other steps."""
+def _motion_runs(t_end: float, n_c1: int, n_kp: int) -> tuple[np.ndarray, np.ndarray, BatchResult, np.ndarray]:
+    """The motion map's plants over (c1, KP) from the paper's 1 mm start, Ct nominal, and their severities (NaN
+    where a run diverged): compiled work and transforms that release the GIL, so `reproduce` runs it on a thread
+    beside its other steps."""
     c1s = np.geomspace(*studied_range("c1"), n_c1)
     kps = np.geomspace(1e4, 1e7, n_kp)
     params = [MillParams(c1=c) for c in c1s for _ in kps]
     gains = [PIDGains(k, PAPER_GAINS.ki) for _ in c1s for k in kps]
-    return c1s, kps, simulate_batch(params, gains, t_end)
+    batch = simulate_batch(params, gains, t_end)
+    severity = np.array([np.nan if run.diverged else run.severity() for run in batch])
+    return c1s, kps, batch, severity
 
 
-def _motion_map(out: Path, runs: tuple[np.ndarray, np.ndarray, BatchResult], processes: int = 1,
+def _motion_map(out: Path, runs: tuple[np.ndarray, np.ndarray, BatchResult, np.ndarray], processes: int = 1,
                 figure: bool = True) -> list[Path]:
     """Simulated kind of motion over (c1, KP) (`_motion_runs`): its CSV and, with `figure`, its picture with the
     linear critical KP."""
+    from millvib_env.analysis.dynamics import classify_motion
 
-    c1s, kps, batch = runs
+    c1s, kps, batch, severity = runs
     n_kp = kps.size
     grid = np.zeros((c1s.size, n_kp), dtype=int)
-    sev = np.full((c1s.size, n_kp), np.nan)
     rows = []
     for idx, run in enumerate(batch):
         i, j = divmod(idx, n_kp)
         m = classify_motion(run)
         grid[i, j] = _MOTION_KINDS.index(m.kind)
-        sev[i, j] = np.nan if run.diverged else run.severity()
         rows.append({"c1": f"{c1s[i]:.6g}", "KP": f"{kps[j]:.6g}", "motion": m.label,
-                     "severity_mm_s": f"{sev[i, j]:.4f}"})
+                     "severity_mm_s": f"{severity[idx]:.4f}"})
     csv_path = _write_csv(out / "motion_map_c1_kp.csv", rows)
     return [_motion_figure(out, c1s, kps, grid, processes), csv_path] if figure else [csv_path]
 
