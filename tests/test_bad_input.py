@@ -513,3 +513,28 @@ def test_every_help_is_plain_text_and_the_speed_command_keeps_its_earlier_name(c
     assert main(["bench", *argv]) == 0
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["note: millvib bench is now 'millvib speed' ('bench' stays for one release)"]
+
+
+def test_the_command_lines_parser_shows_the_modules_docstrings_without_loading_them():
+    """`tune`, `distill` and `export` show their modules' docstrings as help, read from the source
+    (`cli._module_doc`): building the parser loads neither those modules nor the controllers they import, so
+    every other command starts without them."""
+    import subprocess
+    import sys
+
+    import millvib_env.control.export as export
+    import millvib_env.training.distill as distill
+    import millvib_env.tuning.baselines as baselines
+    from millvib_env.cli import _module_doc
+    from millvib_env.tuning import ENTRIES
+
+    for module in (baselines, distill, export):
+        assert _module_doc(module.__name__) == module.__doc__
+    assert ENTRIES == tuple(baselines.TUNERS)
+    code = ("import sys\n"
+            "from millvib_env.cli import build_parser\n"
+            "build_parser()\n"
+            "print(sorted(m for m in ('millvib_env.tuning.baselines', 'millvib_env.training.distill', "
+            "'millvib_env.control.export', 'millvib_env.control.factory') if m in sys.modules))\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.stdout.strip() == "[]", run.stderr

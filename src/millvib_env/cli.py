@@ -297,6 +297,17 @@ def _plain(doc: str | None) -> str:
     return re.sub(r"`([^`]+)`", r"\1", text)
 
 
+def _module_doc(module: str) -> str:
+    """A module's docstring, read from its source without running it: `tune`'s and `distill`'s modules load the
+    controllers, a fifth of a second that every other command would pay for help texts it does not show."""
+    import ast
+    import importlib.util
+
+    spec = importlib.util.find_spec(module)
+    assert spec is not None and spec.origin is not None
+    return ast.get_docstring(ast.parse(Path(spec.origin).read_text(encoding="utf-8")), clean=False) or ""
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="millvib", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -405,9 +416,10 @@ def build_parser() -> argparse.ArgumentParser:
         "with the disturbances' course over its horizon) on the same held-out plants. Prints the benchmark's "
         "table with the room: (reference - bound) / reference on the mean and the CVaR-20, with paired 95 % "
         "intervals, and each controller's share of it. --controllers adds or replaces rows.")), _cmd_headroom)
-    from millvib_env.tuning.baselines import ENTRIES, __doc__ as tune_doc
+    from millvib_env.tuning import ENTRIES
 
-    p = sub.add_parser("tune", help="tune a task's classical baselines", description=_plain(tune_doc),
+    p = sub.add_parser("tune", help="tune a task's classical baselines",
+                       description=_plain(_module_doc("millvib_env.tuning.baselines")),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="startup", help="task: startup, rolling, change or varied (default startup)")
     p.add_argument("--only", nargs="+", choices=ENTRIES, metavar="ENTRY",
@@ -433,12 +445,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=_cmd_tune)
 
-    from millvib_env.training.distill import __doc__ as distill_doc
-
-    from millvib_env.control.export import __doc__ as export_doc
-
     p = sub.add_parser("export", help="a trained agent as an ONNX graph, checked against the agent",
-                       description=_plain(export_doc), formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=_plain(_module_doc("millvib_env.control.export")),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("agent", help="a shipped agent's name (millvib benchmark lists them) or an agent folder")
     p.add_argument("--seed", type=int, default=None, help="the training seed of a multi-seed agent (default: "
                                                           "its lowest)")
@@ -451,7 +460,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
-                       description=_plain(distill_doc), formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=_plain(_module_doc("millvib_env.training.distill")),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--task", default="rolling", help="task: startup, rolling, change or varied (default rolling)")
     p.add_argument("--teacher", default="mpc-preview", choices=["mpc-preview", "mpc-oracle"],
                    help="the oracle that labels every loop sample (default mpc-preview)")

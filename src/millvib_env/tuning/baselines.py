@@ -45,6 +45,7 @@ from millvib_env.distributed import run_jobs
 from millvib_env.envs.config import cached_env_config
 from millvib_env.params import MillParams
 from millvib_env.tasks import Task, takes_task
+from millvib_env.tuning import ENTRIES  # every entry `millvib tune` tunes, in TUNERS' order
 from millvib_env.tuning import search as tuning  # the searches, called through the module (a test stands them in)
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
@@ -252,8 +253,6 @@ TUNERS: dict[str, Callable[[_Run], dict]] = {
     "pid-adaptive": _tune_adaptive, "pid-pf-robust": _tune_pf_robust, "pid-pf-ff": _tune_pf_ff,
     "pid-pf-oracle": _tune_pf_oracle,
 }
-#: every entry `millvib tune` tunes
-ENTRIES = tuple(TUNERS)
 #: the entries that `--from-task` shares with another task instead of tuning them (the oracles' tables)
 SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 
