@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -248,13 +250,18 @@ def test_the_new_commands_refuse_bad_input_in_one_line_before_any_work(argv, wha
 
 
 @pytest.mark.slow
-def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path):
+def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path, capsys):
     """One DAgger iteration on one training episode: the folder is an ordinary agent (the benchmark's loader runs
-    it), its card says how it was made and selected, and it was scored on the validation plants."""
+    it), its card says how it was made and selected, and it was scored on the validation plants. Beside its
+    progress bar, the run says what it does between rollouts: fitting, scoring, and the best cost so far."""
     from millvib_env.training.distill import distill
 
-    card = distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False,
+    card = distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=True,
                    validation_episodes=4)
+    err = capsys.readouterr().err
+    assert "iteration 1: fitting the student to" in err
+    assert "iteration 1: scoring it on validation plants 15000-15003" in err
+    assert re.search(r"iteration 1: cost [0-9.e+-]+; best [0-9.e+-]+ \(iteration 1\)", err), err[-400:]
     assert card["selected"]["iteration"] == 1 and card["validation"]["episodes"] == 4
     assert card["validation"]["seeds"] == "15000-15003"  # the first of the task's validation plants
     agent = load_controller(str(tmp_path / "agent"), "startup")

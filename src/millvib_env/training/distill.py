@@ -131,6 +131,12 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int) -> 
     return loss_value
 
 
+def _say(bar, what: str) -> None:
+    """What the run does between its rollouts, beside the progress bar (its steps are the rollouts' alone)."""
+    if bar is not None:
+        bar.set_postfix_str(what)
+
+
 @takes_task()
 def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", baseline: str | None = None, seed: int = 0,
             iterations: int = 4,
@@ -167,6 +173,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
                 policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(layers), vf=[64, 64])))
     first = t.train_env_seed(seed)
+    val_first = t.seeds["validation"].start
     save_dir = Path(save_dir)
     bar = None
     if progress:
@@ -188,6 +195,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         X_all.append(X)
         Y_all.append(Y)
         Xc, Yc = np.concatenate(X_all), np.concatenate(Y_all)
+        _say(bar, f"iteration {it + 1}: fitting the student to {len(Yc)} samples")
         stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)), 10.0, 1e-8)
         mse = _fit(model, Xc, Yc, stats, epochs, seed + it)
         policy = model.policy
@@ -195,10 +203,14 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
         card = _card(t.name, env_id, kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command, baseline)
+        _say(bar, f"iteration {it + 1}: scoring it on validation plants {val_first}-"
+                  f"{val_first + validation_episodes - 1}")
         val = validation_result(folder, card, episodes=validation_episodes)
         history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse, **val})
         if best is None or val["cost_mean"] < best[1]["cost_mean"]:
             best = (folder, val, it + 1)
+        _say(bar, f"iteration {it + 1}: cost {val['cost_mean']:.4g}; best {best[1]['cost_mean']:.4g} "
+                  f"(iteration {best[2]})")
     if bar is not None:
         bar.close()
     assert best is not None  # iterations >= 1: every iteration is validated
