@@ -183,6 +183,46 @@ def test_a_benchmark_of_baselines_never_imports_torch_nor_scipy_signal(tmp_path)
     assert run.stdout.strip().splitlines()[-1] == "0 False False False", run.stdout + run.stderr
 
 
+def test_an_evaluation_starts_one_episode_per_plant_and_none_after_the_last(monkeypatch):
+    """The step that ends the last episodes restarts no environment: a new episode's draw (its plant, its settled
+    state) would be discarded. The records are those of the loop that restarts them, and an environment left
+    done says so in one line if it is stepped again."""
+    from millvib_env.control import load_controller
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.envs.core import MillVibCore
+    from millvib_env.evaluation.evaluate import run_episodes
+
+    started = []
+    reset_env, step = MillVibCore.reset_env, EpisodeBatch.step
+
+    def counted(self, i, *args, **kwargs):
+        started.append(i)
+        return reset_env(self, i, *args, **kwargs)
+
+    monkeypatch.setattr(MillVibCore, "reset_env", counted)
+    plants = [20000, 20001, 20002]
+    for name in ("pid-robust", "pid-adaptive"):
+        started.clear()
+        records = run_episodes(load_controller(name, "rolling"), plants, env_kwargs={"episode_s": 0.1})
+        assert sorted(started) == [0, 1, 2], (name, started)
+        with monkeypatch.context() as m:  # every done environment restarted, as a vector env does
+            m.setattr(EpisodeBatch, "step", lambda self, actions, restart=True: step(self, actions))
+            started.clear()
+            again = run_episodes(load_controller(name, "rolling"), plants, env_kwargs={"episode_s": 0.1})
+            assert sorted(started) == [0, 0, 1, 1, 2, 2]
+        assert again == records, name
+
+    batch = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling", episode_s=0.1)
+    batch.reset([20000, 20001])
+    zero = np.zeros((2, 1), dtype=np.float32)
+    for _ in range(batch.core.max_steps - 1):
+        batch.step(zero, restart=False)
+    _, dones, _ = batch.step(zero, restart=False)
+    assert dones.all()
+    with pytest.raises(ValueError, match=r"^step\(\) before reset\(\)"):
+        batch.step(zero)
+
+
 def test_episode_records_and_the_csv_columns_have_one_home():
     from millvib_env.control import load_controller
     from millvib_env.evaluation.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes

@@ -83,10 +83,15 @@ class EpisodeBatch:
             obs[i], self.reset_infos[i] = self.core.reset_env(i, int(seeds[i]), options)
         return obs
 
-    def step(self, actions) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-        """(observations, done flags, infos); a done environment's info is its episode's last."""
+    def step(self, actions, *, restart: bool = True) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+        """(observations, done flags, infos); a done environment's info is its episode's last. With `restart`
+        False a done environment is not started again: its observation is its episode's last, and it must be
+        `reset` before it steps again (for a caller whose last episodes end at this step)."""
         obs, _, terminated, truncated, infos = self.core.step(actions)
         dones = terminated | truncated
-        for i in np.flatnonzero(dones):
-            obs[i], self.reset_infos[i] = self.core.reset_env(int(i))
+        if restart:
+            for i in np.flatnonzero(dones):
+                obs[i], self.reset_infos[i] = self.core.reset_env(int(i))
+        else:
+            self.core.started[dones] = False
         return obs, dones, infos

@@ -129,9 +129,12 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     if progress:
         from tqdm.auto import tqdm
         bar = tqdm(total=n, desc=desc or controller.name, unit="ep", leave=False)
+    core = venv.core
     while any(r is None for r in records):
         action, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        obs, dones, infos = venv.step(action)
+        # the step that ends every episode still running restarts none: a new episode's draw would be discarded
+        last = all(r is not None or core.k[i] + 1 >= core.max_steps for i, r in enumerate(records))
+        obs, dones, infos = venv.step(action, restart=not last)
         episode_start = dones
         controller.on_step(infos)
         finished = np.flatnonzero(dones)
@@ -155,7 +158,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
                 records[i] = cast(EpisodeRecord, rec)
                 if bar is not None:
                     bar.update(1)
-        if len(finished):
+        if len(finished) and not last:
             controller.on_reset([venv.reset_infos[i] for i in finished], finished)
     if bar is not None:
         bar.close()
