@@ -260,7 +260,21 @@ class AdaptivePolicy(PerEnvGains):
                                  "(the benchmark's evaluation loop does)")
             self.estimator.update(i, info["signals"])
             self.estimator.record_error(i, info["params"]["c1"], info["params"]["Ct"])
-            self._set(i, {"c1": self.estimator.c1_hat[i], "Ct": self.estimator.ct_hat[i]})
+        n = len(infos)
+        c1, ct = self.estimator.c1_hat[:n], self.estimator.ct_hat[:n]
+        self._held[:n] = self.gain_map.action(self.gains_at(c1, ct))  # every environment's in one call
+        for i in range(n):
+            self._plant[i] = (c1[i], ct[i])
+
+    def gains_at(self, c1: np.ndarray, ct: np.ndarray) -> np.ndarray:
+        """(n, 3): `gains_for` of each estimate (c1[k], Ct[k]), the table read once for all."""
+        out = np.empty((len(c1), 3))
+        known = np.isfinite(c1)
+        out[~known] = self.fallback
+        if known.any():
+            ct_known = ct[known]
+            out[known] = self.table.at(c1[known], np.where(np.isfinite(ct_known), ct_known, self.nominal.Ct))
+        return out
 
     def _set(self, i: int, params: dict) -> None:
         self._plant[i] = (params["c1"], params["Ct"])

@@ -132,8 +132,13 @@ class GainTable:
 
     def __call__(self, c1: float, ct: float) -> np.ndarray:
         """(KP, KI, KD) for the plant (c1, Ct); plants outside the grid take its edge."""
-        point = np.clip(np.log([c1, ct]), self._lo, self._hi)
-        return 10.0 ** self._interp(point[None, :])[0]
+        return self.at(np.array([c1]), np.array([ct]))[0]
+
+    def at(self, c1: np.ndarray, ct: np.ndarray) -> np.ndarray:
+        """(n, 3): (KP, KI, KD) for the plants (c1[k], Ct[k]) in one call; each row is what the plant alone gets
+        (elementwise operations, one point after another in the interpolation)."""
+        point = np.clip(np.log(np.stack([c1, ct], axis=1)), self._lo, self._hi)
+        return 10.0 ** self._interp(point)
 
 
 class ControllerLoop(gym.Wrapper):
