@@ -223,6 +223,33 @@ def test_an_evaluation_starts_one_episode_per_plant_and_none_after_the_last(monk
         batch.step(zero)
 
 
+def test_scenarios_in_one_batch_give_each_scenarios_own_episode():
+    """`run_episodes` takes one scenario per seed; for a controller whose environments do not touch each other
+    (`batch_exact`: the baselines, the MPC bounds), a batch of the named scenarios gives the records of one
+    scenario at a time, as the benchmark's scenario rows need. A list of the wrong length is refused in one
+    line, before any work."""
+    from millvib_env.control import load_controller
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.evaluation.evaluate import run_episodes
+
+    names = ["nominal", "low-damping", "high-leakage"]
+    short = {"episode_s": 0.1}
+    for name in ("pid-adaptive", "mpc-oracle"):
+        ctrl = load_controller(name, "startup", version="v1")
+        assert ctrl.batch_exact
+        together = run_episodes(ctrl, [20000] * 3, scenario=names, env_kwargs=short)
+        alone = [run_episodes(load_controller(name, "startup", version="v1"), [20000], scenario=sc,
+                              env_kwargs=short)[0]
+                 for sc in names]
+        assert [r["scenario"] for r in together] == names
+        assert together == alone, name
+    with pytest.raises(ValueError, match=r"^scenario = \['nominal'\] is invalid: .* a list of 2 \(one per seed\)$"):
+        run_episodes(load_controller("pid-robust", "startup"), [1, 2], scenario=["nominal"])
+    batch = EpisodeBatch("MillVib-GainSchedule-v1", 2, config="startup")
+    with pytest.raises(ValueError, match=r"^options = .* is invalid: a dict of reset options, or a list of 2"):
+        batch.reset([1, 2], [{"scenario": "nominal"}])
+
+
 def test_episode_records_and_the_csv_columns_have_one_home():
     from millvib_env.control import load_controller
     from millvib_env.evaluation.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes

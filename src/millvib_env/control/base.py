@@ -33,6 +33,10 @@ class Controller:
     #: a trained agent's card (`card.json`) and training seed (`control.agents.AgentPolicy`); None for a baseline
     card: dict | None = None
     seed: int | None = None
+    #: True: an environment's actions depend on that environment alone, bit for bit, whatever else is in the
+    #: batch (the baselines). False by default: a network's products round with the batch's size, so the
+    #: benchmark runs such a controller's named scenarios one at a time
+    batch_exact = False
 
     def env_kwargs_for(self, task: Task | None = None, env_kwargs: dict | None = None) -> dict:
         """The environment keyword arguments this controller runs with on `task`: the task's config,
@@ -67,6 +71,8 @@ class Controller:
 
 class PerEnvGains(Controller):
     """A controller that holds one action per environment, set from each plant's (c1, Ct)."""
+
+    batch_exact = True
 
     gain_map: GainMap
     _actions: np.ndarray | None = None  # (n, dim) float32, grown by _ensure

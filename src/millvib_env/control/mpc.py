@@ -217,6 +217,7 @@ class MPCPolicy(Controller):
     runs on (`reads_plant`: the evaluation loop hands it the environment's core with `attach`)."""
 
     reads_plant = True
+    batch_exact = True  # one QP per environment
 
     def __init__(self, name: str, settings: MPCSettings, version: str = "v1"):
 

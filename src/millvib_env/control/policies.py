@@ -41,6 +41,8 @@ class FixedGainPolicy(Controller):
     config runs as 1e12, or is refused if it is negative or not finite). The gains are all it needs: the
     environment's action bounds (its GainMap) play no part."""
 
+    batch_exact = True
+
     def __init__(self, name: str, gains, description: str = ""):
         if not isinstance(description, str):
             raise ValueError(f"description = {shown(description)} is invalid: a string (a FixedGainPolicy takes a "

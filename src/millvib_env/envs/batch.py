@@ -77,10 +77,19 @@ class EpisodeBatch:
         self.n = n
         self.reset_infos: list[dict] = [{} for _ in range(n)]
 
-    def reset(self, seeds: Sequence[int], options: dict | None = None) -> np.ndarray:
+    def reset(self, seeds: Sequence[int], options: dict | Sequence[dict | None] | None = None) -> np.ndarray:
+        """Start environment i on seeds[i] with `options` (Gymnasium's reset options: one dict for every
+        environment, or one dict or None per environment)."""
+        if options is None or isinstance(options, dict):
+            per_env: Sequence[dict | None] = [options] * self.n
+        elif isinstance(options, (list, tuple)) and len(options) == self.n:
+            per_env = options
+        else:
+            raise ValueError(f"options = {shown(options)} is invalid: a dict of reset options, or a list of "
+                             f"{self.n} (one dict or None per environment)")
         obs = np.zeros((self.n, *self.core.observation_space.shape), dtype=np.float32)
         for i in range(self.n):
-            obs[i], self.reset_infos[i] = self.core.reset_env(i, int(seeds[i]), options)
+            obs[i], self.reset_infos[i] = self.core.reset_env(i, int(seeds[i]), per_env[i])
         return obs
 
     def step(self, actions, *, restart: bool = True) -> tuple[np.ndarray, np.ndarray, list[dict]]:

@@ -276,12 +276,16 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
 
 
 def _scenario_records(ctrl, plant: int) -> dict[str, dict]:
-    """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost."""
-    out = {}
-    for sc in distinct_plant_scenarios():
-        rec = _run(ctrl, [plant], scenario=sc)[0]
-        out[sc] = {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost")}
-    return out
+    """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost.
+    A controller whose environments do not touch each other (`Controller.batch_exact`: the baselines) runs them
+    as one batch, with the numbers of one at a time; any other one at a time."""
+    names = list(distinct_plant_scenarios())
+    if ctrl.batch_exact:
+        recs = _run(ctrl, [plant] * len(names), scenario=names)
+    else:
+        recs = [_run(ctrl, [plant], scenario=sc)[0] for sc in names]
+    return {sc: {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost")}
+            for sc, rec in zip(names, recs)}
 
 
 def _header(task: Task, version: str, reference: str, seed: int, episodes: int, all_seeds: bool) -> dict:

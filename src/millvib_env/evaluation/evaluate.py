@@ -102,24 +102,32 @@ def env_kwargs_for(controller: Controller, task: str | Task | None = None, env_k
     return controller.env_kwargs_for(task, env_kwargs)
 
 
-def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | None = None,
+def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | Sequence[str | None] | None = None,
                  env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
                  progress: bool = False, desc: str = "", task: str | Task | None = None) -> list[EpisodeRecord]:
     """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
 
     `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
-    are merged on top). Controllers that estimate the plant get every step's measured signals.
+    are merged on top). Controllers that estimate the plant get every step's measured signals. `scenario`:
+    a named scenario for every episode, or one (or None) per seed.
     """
     instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
     seeds = integers("seeds", seeds)
     env_id = controller.env_id if env_id is None else choice("env_id", env_id, sorted(ENV_IDS))
     kwargs = env_kwargs_for(controller, task, env_kwargs)
     n = len(seeds)
+    if scenario is None or isinstance(scenario, str):
+        scenarios: list[str | None] = [scenario] * n
+    elif isinstance(scenario, (list, tuple)) and len(scenario) == n:
+        scenarios = list(scenario)
+    else:
+        raise ValueError(f"scenario = {shown(scenario)} is invalid: a scenario's name, None, or a list of {n} "
+                         "(one per seed)")
     venv = EpisodeBatch(env_id, n, **kwargs)
     venv.core.record_signals = controller.needs_signals
     if controller.reads_plant:
         controller.attach(venv.core)
-    obs = venv.reset(seeds, {"scenario": scenario} if scenario is not None else None)
+    obs = venv.reset(seeds, [None if sc is None else {"scenario": sc} for sc in scenarios])
     controller.on_reset(venv.reset_infos, range(n))
     records: list[EpisodeRecord | None] = [None] * n
     first_params = [dict(info["params"]) for info in venv.reset_infos]
@@ -142,7 +150,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
             if records[i] is None:
                 info = infos[i]
                 sev, trk = float(info["severity"]), float(info["tracking_rms_um"])
-                rec = {"seed": int(seeds[i]), "scenario": scenario, "c1": first_params[i]["c1"],
+                rec = {"seed": int(seeds[i]), "scenario": scenarios[i], "c1": first_params[i]["c1"],
                        "Ct": first_params[i]["Ct"], "beta_e": first_params[i]["beta_e"],
                        "mt": first_params[i]["mt"], "FL": first_params[i]["FL"],
                        "c1_end": info["params"]["c1"], "Ct_end": info["params"]["Ct"],
