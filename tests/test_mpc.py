@@ -82,6 +82,29 @@ def test_the_condensed_qp_is_the_model_stepped():
         np.testing.assert_allclose(g, num, rtol=1e-6, atol=1e-9 * np.max(np.abs(num)))
 
 
+def test_a_model_is_built_with_blas_on_one_thread(monkeypatch):
+    """BLAS's threads, woken by the condensed QP's products at every build, spun on the other core (a quarter of
+    a benchmark's CPU time); the build runs with one, and the limit is lifted after it."""
+    from threadpoolctl import threadpool_info
+
+    import millvib_env.control.mpc as mpc
+
+    seen = []
+    build = mpc._build_model
+
+    def watched(*args, **kwargs):
+        seen.extend(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas")
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(mpc, "_build_model", watched)
+    before = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+    if not before:
+        pytest.skip("no BLAS library that threadpoolctl can see")
+    mpc_model(get_task("rolling").configs["v1"].base_params, MPCSettings(horizon=6), 5e-4, 0.0)
+    assert seen and set(seen) == {1}
+    assert [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"] == before
+
+
 def test_mpc_respects_the_amplifier_and_the_loop():
     """Both bounds run on the valve of the sampled loop, never command beyond +-u_max, and every QP solves."""
     for name in ("mpc-oracle", "mpc-preview"):

@@ -148,12 +148,20 @@ def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarra
 
 
 def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float = 0.0) -> MPCModel:
-    """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`."""
-    from scipy import linalg, sparse
-
+    """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`. Built with BLAS
+    on one thread (`one_blas_thread`): its products are a few hundred rows, and BLAS's threads, woken at every
+    build (the startup ramp rebuilds a model every few samples), spun on the other core for a quarter of a
+    benchmark's CPU time and slowed its worker processes by half."""
     instance("params", params, MillParams, "a MillParams")
     instance("settings", settings, MPCSettings, "an MPCSettings")
     dt_s = real("dt_s", dt_s, lo=0.0, lo_open=True, hi=0.1)
+    with one_blas_thread():
+        return _build_model(params, settings, dt_s, xd)
+
+
+def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float) -> MPCModel:
+    from scipy import linalg, sparse
+
     ss = linearize(params, xd, friction="sliding", du=min(settings.du_v, params.u_max))
     keep = [STATE_NAMES.index(n) for n in ss.states]
     n = len(keep)
@@ -165,8 +173,7 @@ def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float 
     Bc[:n, 0] = ss.B[:, 0]
     Bc[:n, 1:3] = ss.E
     Bc[n, 3] = 1.0  # the set-point's deviation from xd0 feeds the integral
-    with one_blas_thread():
-        Ad, BEd = _zoh(Ac, Bc, dt_s)
+    Ad, BEd = _zoh(Ac, Bc, dt_s)
     Bd, Ed = BEd[:, 0], BEd[:, 1:]
     # the stage cost on s: weights of (x - xd), v, xi in scaled terms; the set-point enters through e
     iv = ss.states.index("v")
@@ -175,11 +182,10 @@ def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float 
     Q[iv, iv] = settings.q_v / V_SCALE_M_S ** 2
     Q[n, n] = settings.q_i / I_SCALE_M_S ** 2
     R = settings.r / U_SCALE_V ** 2
-    with one_blas_thread():
-        try:
-            P = linalg.solve_discrete_are(Ad, Bd[:, None], Q, np.array([[R]]))
-        except (np.linalg.LinAlgError, ValueError):
-            P = Q.copy()
+    try:
+        P = linalg.solve_discrete_are(Ad, Bd[:, None], Q, np.array([[R]]))
+    except (np.linalg.LinAlgError, ValueError):
+        P = Q.copy()
     N = int(settings.horizon)
     # stacked prediction: s_j = A^j s_0 + sum_i A^(j-1-i) (B u_i + E e_i), j = 1..N
     Apow = [np.eye(ns)]
