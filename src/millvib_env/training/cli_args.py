@@ -93,7 +93,9 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "at ADDRESS; results equal the local run's for the same seed")
     p.add_argument("--jobs", type=int, default=1,
                    help="local worker processes for controllers x episode chunks (default 1: this process); each "
-                        "episode depends only on its seeds, so the numbers are the same for any number")
+                        "episode depends only on its seeds, so the numbers are the same for any number. Worth it "
+                        "where the MPC bounds or agents run (their rows take seconds), not for the classical "
+                        "controllers alone, whose workers would spend longer loading them than running them")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--no-figures", action="store_true",
