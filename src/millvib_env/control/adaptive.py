@@ -11,7 +11,11 @@ least squares in information form: the information matrix and vector decay by
 
 * leakage, from the continuity equation (4) integrated over the period:
   ``int(QL - Ap v) dt - (Ap (L1 + x) / beta_e) dpL = Ct int(pL - pb) dt``, with the valve flow QL
-  of the measured command from the valve's model (1)-(3), evaluated by `plant_rhs` itself;
+  of the measured command from the valve's model (1)-(3), evaluated by `plant_rhs` itself. Where the
+  valve has dynamics (``valve_wn_hz > 0``, the v1 loop), the flow follows the spool, not the command:
+  the spool's position comes from an observer that runs `plant_rhs`'s own spool equations (affine in
+  the spool state, so exactly discretised once, `spool_discretization`) along the measured command,
+  which the recorded signals hold over each sample interval;
 * damping, from the force balance (8): ``mt (a_model - a) - (FL(t) - FL) = c1 v``, where a_model
   is the plant's own right-hand side (`plant_rhs`, the one implementation) evaluated at the
   measured x, v, pL with c1 = 0 and the nominal load, FL(t) the load cells' rolling force, and
@@ -40,16 +44,49 @@ from millvib_env.envs.actions import GainMap
 from millvib_env.envs.filter_design import butter_sos
 from millvib_env.envs.period import pairwise_sum, sosfilt_into
 from millvib_env.params import MillParams
-from millvib_env.plant.model import A_QL, C_UEXT, IPL, IV, IX, IZ, NAUX, NC, NY, P_FS, P_S0, pack, plant_rhs
+from millvib_env.plant.model import (A_QL, C_UEXT, D_VW, IPL, IV, IVS, IX, IXS, IZ, NAUX, NC, NY, P_FS, P_S0, pack,
+                                     plant_rhs)
+
+
+def spool_discretization(p: np.ndarray, dt: float) -> np.ndarray:
+    """(2, 4): the spool of the plant `p` (packed) over one sample interval dt with the command held, as
+    ``s_k = Phi s_(k-1) + gamma u_k`` for s = (xs, vs): columns Phi, gamma and the steady state per volt
+    (``s = steady u`` under a constant command). The spool equations are `plant_rhs`'s own, read off it (they
+    are affine in the spool state and the command) and discretised exactly (the matrix exponential). A valve
+    without dynamics (``valve_wn_hz = 0``, where plant_rhs's flow follows the command and ignores the spool):
+    Phi = I and the rest zero, so the observer's spool stays at 0."""
+    out = np.zeros((2, 4))
+    out[0, 0] = out[1, 1] = 1.0
+    if not p[D_VW] > 0.0:
+        return out
+
+    def rate(xs: float, vs: float, u: float) -> np.ndarray:
+        y, dy, aux, c = np.zeros(NY), np.empty(NY), np.empty(NAUX), np.zeros(NC)
+        y[IXS], y[IVS], c[C_UEXT] = xs, vs, u
+        plant_rhs(0.0, y, p, c, dy, aux)
+        return np.array([dy[IXS], dy[IVS]])
+
+    free = rate(0.0, 0.0, 0.0)
+    a = np.column_stack([rate(1.0, 0.0, 0.0) - free, rate(0.0, 1.0, 0.0) - free])
+    b = rate(0.0, 0.0, 1.0) - free
+    from scipy.linalg import expm, solve
+
+    m = expm(np.block([[a, b[:, None]], [np.zeros((1, 3))]]) * dt)
+    out[:, :3] = m[:2, :3]
+    out[:, 3] = solve(a, -b)
+    return out
 
 
 @njit(cache=True)
-def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
+def model_acceleration(t, x, v, pL, u, z0, p, out, flow, spool, s, start):
     """Acceleration of the plant model `p` (c1 = 0 there) at the measured samples, with the bristle
     state integrated along the measured velocity (trapezoidal rule on plant_rhs's bristle rate,
     which is affine in z; the trapezoidal rule adds no phase lag, which would read as damping),
     and the valve flow QL of the measured command (the valve's model, Eq. 1-3, from the same
-    plant_rhs). Writes out[k] and flow[k]; returns the bristle state after the last sample."""
+    plant_rhs) through the spool observer `spool` (`spool_discretization`): s (xs, vs) is the spool at
+    the first sample, advanced in place to the last; where `start` (an episode's first sample), the
+    steady state of the first command. Writes out[k] and flow[k]; returns the bristle state after the
+    last sample."""
     y = np.zeros(NY)
     dy = np.empty(NY)
     aux = np.empty(NAUX)
@@ -58,6 +95,9 @@ def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
     z = z0
     d_prev = 0.0
     r_prev = 0.0
+    if start and x.shape[0] > 0:
+        s[0] = spool[0, 3] * u[0]
+        s[1] = spool[1, 3] * u[0]
     for k in range(x.shape[0]):
         y[IX] = x[k]
         y[IV] = v[k]
@@ -72,8 +112,13 @@ def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
         if k > 0:
             h = 0.5 * (t[k] - t[k - 1])
             z = (z * (1.0 - h * r_prev) + h * (d_prev + dz0)) / (1.0 + h * rate)
+            xs = spool[0, 0] * s[0] + spool[0, 1] * s[1] + spool[0, 2] * u[k]
+            s[1] = spool[1, 0] * s[0] + spool[1, 1] * s[1] + spool[1, 2] * u[k]
+            s[0] = xs
         d_prev, r_prev = dz0, rate
         y[IZ] = z
+        y[IXS] = s[0]
+        y[IVS] = s[1]
         c[C_UEXT] = u[k]
         plant_rhs(t[k], y, p, c, dy, aux)
         out[k] = dy[IV]
@@ -83,13 +128,14 @@ def model_acceleration(t, x, v, pL, u, z0, p, out, flow):
 
 @njit(cache=True)
 def _estimate_period(t, x, v, pL, u, a, FL, last, z0, flow_prev, has_prev, acc, zi, sos, p_model, consts, decay,
-                     dt):
+                     dt, spool, s):
     """One environment's period of `PlantEstimator.update`, compiled: the same operations in the same order as
     the numpy and scipy calls it replaces (numpy's pairwise sums, scipy's sosfilt, the same dot products), so
     the same numbers. `last` (t, x, v, pL, u) and `flow_prev` (net flow, compliance, leak pressure, pL): the
     previous period's last samples, used where `has_prev` (every period but an episode's first), and
     overwritten. `acc`: the forgotten sums (ct_num, ct_den, R, r), updated; `zi`: the two high-passes' section
-    states, updated. Returns the bristle state after the last sample."""
+    states, updated; `s`: the spool observer's state at the previous period's last sample, advanced. Returns the
+    bristle state after the last sample."""
     ap, l1, beta_e, pb = consts[0], consts[1], consts[2], consts[3]
     mt, fl0, v_scale = consts[4], consts[5], consts[6]
     m = x.shape[0]
@@ -100,7 +146,7 @@ def _estimate_period(t, x, v, pL, u, a, FL, last, z0, flow_prev, has_prev, acc, 
         ct[0], cx[0], cv[0], cp[0], cu[0] = last[0], last[1], last[2], last[3], last[4]
     ct[j:], cx[j:], cv[j:], cp[j:], cu[j:] = t, x, v, pL, u
     a_model, ql = np.empty(n), np.empty(n)
-    z = model_acceleration(ct, cx, cv, cp, cu, z0, p_model, a_model, ql)
+    z = model_acceleration(ct, cx, cv, cp, cu, z0, p_model, a_model, ql, spool, s, not has_prev)
     last[0], last[1], last[2], last[3], last[4] = ct[n - 1], cx[n - 1], cv[n - 1], cp[n - 1], cu[n - 1]
     # leakage: continuity integrated over the period (trapezoidal rule, from the previous sample on)
     net, comp, lk, pl = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
@@ -166,6 +212,7 @@ class PlantEstimator:
         self.p_model = pack(params.replace(c1=0.0))  # valve flow gain Cd W sqrt(2/rho) Ksv Kp1 (data sheet)
         self.sos = butter_sos(2, settings.highpass_hz, "highpass", sample_rate_hz)
         self._consts = np.array([params.Ap, params.L1, params.beta_e, params.pb, params.mt, params.FL, self.V_SCALE])
+        self.spool_model = spool_discretization(self.p_model, 1.0 / sample_rate_hz)
         self.n = 0
         self.reset_all(0)
 
@@ -178,14 +225,15 @@ class PlantEstimator:
         self.ct_hat = np.full(n, np.nan)
         self.flow_prev = np.zeros((n, 4))  # the previous period's last net flow, compliance, leak pressure, pL
         self.last = np.zeros((n, 5))  # the previous period's last t, x, v, pL, u
-        self.has_prev = np.zeros(n, dtype=bool)  # whether flow_prev and last hold a previous period
+        self.has_prev = np.zeros(n, dtype=bool)  # whether flow_prev, last and spool hold a previous period
+        self.spool = np.zeros((n, 2))  # the spool observer's (xs, vs) at the previous period's last sample
         self.err_c1: list[list[float]] = [[] for _ in range(n)]
         self.err_ct: list[list[float]] = [[] for _ in range(n)]
 
     def grow(self, n: int) -> None:
         if n <= self.n:
             return
-        names = ("z", "acc", "zi", "c1_hat", "ct_hat", "flow_prev", "last", "has_prev", "err_c1", "err_ct")
+        names = ("z", "acc", "zi", "c1_hat", "ct_hat", "flow_prev", "last", "has_prev", "spool", "err_c1", "err_ct")
         old, k = {name: getattr(self, name) for name in names}, self.n
         self.reset_all(n)
         for name in names:
@@ -208,7 +256,8 @@ class PlantEstimator:
         decay = math.exp(-m * dt / self.settings.tau_s)
         self.z[i] = _estimate_period(sig["t"], sig["x"], sig["v"], sig["pL"], sig["u"], sig["a"], sig["FL"],
                                      self.last[i], self.z[i], self.flow_prev[i], self.has_prev[i],
-                                     self.acc[i], self.zi[i], self.sos, self.p_model, self._consts, decay, dt)
+                                     self.acc[i], self.zi[i], self.sos, self.p_model, self._consts, decay, dt,
+                                     self.spool_model, self.spool[i])
         self.has_prev[i] = True
         ct_num, ct_den, info, r = self.acc[i]
         if ct_den > 0:
