@@ -309,6 +309,32 @@ def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
         run_benchmark(["pid-robust"], jobs=0, **kw)
 
 
+def test_jobs_auto_runs_worker_processes_only_where_they_pay(monkeypatch):
+    """`--jobs auto` (the CLI's default): processes where an MPC bound or two agent runs take part on enough
+    plants, never more than the usable cores, MILLVIB_NUM_THREADS or AUTO_JOBS_MAX; one process for the classical
+    controllers, for one agent (all its plants are one job) and for a few plants."""
+    from millvib_env.evaluation import benchmark as bm
+    from millvib_env.threads import THREADS_ENV
+
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    monkeypatch.setattr(bm, "usable_cores", lambda: 8)
+    classical = [(n, None) for n in ("pid-paper", "pid-robust", "pid-adaptive", "pid-pf-robust")]
+    mpc, agent = [("mpc-oracle", None)], [("student", 0)]
+    assert bm.auto_jobs(classical, 200) == 1
+    assert bm.auto_jobs(classical + agent, 200) == 1
+    assert bm.auto_jobs(classical + agent + [("student", 1)], 200) == bm.AUTO_JOBS_MAX
+    assert bm.auto_jobs(classical + mpc, bm.AUTO_MIN_PLANTS) == bm.AUTO_JOBS_MAX
+    assert bm.auto_jobs(classical + mpc, bm.AUTO_MIN_PLANTS - 1) == 1
+    monkeypatch.setattr(bm, "usable_cores", lambda: 2)
+    assert bm.auto_jobs(classical + mpc, 40) == 2
+    monkeypatch.setenv(THREADS_ENV, "1")
+    assert bm.auto_jobs(classical + mpc, 40) == 1
+    # the API's default stays one process; "auto" there gives the one-process run's numbers
+    kw = dict(task="startup", episodes=2, progress=False, scenarios=False, reference="pid-robust")
+    assert public_json(run_benchmark(["pid-paper"], jobs="auto", **kw)) == public_json(run_benchmark(["pid-paper"],
+                                                                                                      **kw))
+
+
 @pytest.mark.slow  # draws five figures: seconds
 def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_panels_apart(monkeypatch, tmp_path):
     """The figures are placed at fixed margins (`_figures.panel_grid`), not measured: the planes, the bars and the

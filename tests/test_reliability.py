@@ -148,6 +148,7 @@ def test_a_batch_too_large_for_memory_is_refused_before_allocating():
     (["benchmark", "--controllers", "no-such-agent"], "no-such-agent"),
     (["benchmark", "--seed", "-1"], "--seed"),
     (["benchmark", "--episodes", "abc"], "--episodes"),
+    (["benchmark", "--jobs", "0"], "--jobs: '0' is invalid: a whole number from 1 to 1024, or auto"),
     (["benchmark", "--json", "/proc/version/x.json"], "--json"),
     (["train", "--algo", "ppo", "--n-timesteps", "0"], "--n-timesteps"),
     (["train", "--algo", "ppo", "--validation-episodes", "0"], "--validation-episodes"),

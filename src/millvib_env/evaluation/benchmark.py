@@ -20,6 +20,7 @@ import csv
 import io
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -41,6 +42,7 @@ from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.plant.model import rated_flow
 from millvib_env.tasks import Task, takes_task
+from millvib_env.threads import configured_threads
 from millvib_env.evaluation.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.evaluation.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
 
@@ -241,6 +243,63 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
+#: the baselines whose rows take seconds (a QP every sample): --jobs auto runs worker processes where one runs
+SLOW_BASELINES = ("mpc-oracle", "mpc-preview")
+#: --jobs auto's most worker processes (measured on 2 cores only: docs/performance.md)
+AUTO_JOBS_MAX = 4
+#: --jobs auto's fewest plants for worker processes: below it, starting them costs more than they save
+AUTO_MIN_PLANTS = 20
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the platform says, else every core)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def auto_jobs(units: Sequence[tuple[str, int | None]], n_plants: int) -> int:
+    """``--jobs auto`` for a benchmark's runs (`_load_units`) on `n_plants` plants: worker processes where an MPC
+    bound (`SLOW_BASELINES`) or two agent runs or more (agents x training seeds) take part and there are at least
+    `AUTO_MIN_PLANTS` plants, as many as the usable cores, MILLVIB_NUM_THREADS (where the user rations the cores)
+    and `AUTO_JOBS_MAX` allow; else 1, this process. An agent runs all its plants in one job, so one agent alone
+    gains nothing from a second process. Measured on 2 cores (docs/performance.md, "--jobs auto")."""
+    slow = any(seed is None and name in SLOW_BASELINES for name, seed in units)
+    agent_runs = sum(seed is not None for _, seed in units)
+    if n_plants < AUTO_MIN_PLANTS or not (slow or agent_runs >= 2):
+        return 1
+    limit = configured_threads()
+    return max(1, min(usable_cores(), AUTO_JOBS_MAX, limit if limit is not None else AUTO_JOBS_MAX))
+
+
+def _processes(jobs: int | str, own: Mapping) -> int | str:
+    """`run_benchmark`'s `jobs`, checked: a whole number, or "auto" (`auto_jobs`, decided once the runs are known;
+    1 where a controller of the user's own runs, in this process)."""
+    if jobs == "auto":
+        return 1 if own else "auto"
+    jobs = integer("jobs", jobs, lo=1, hi=1024)
+    if own and jobs > 1:
+        raise ValueError(f"jobs = {jobs} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
+                         "in this process; give jobs=1")
+    return jobs
+
+
+def _settle_auto(processes: int | str, units: list, loaded: dict, n_plants: int, ray: str | None, task: Task) -> int:
+    """`_processes`'s "auto" decided on the runs (`auto_jobs`; none on Ray). `_load_units` left the seeds that
+    workers load unloaded: where the runs stay in this process after all, they are loaded here."""
+    if processes != "auto":
+        return int(processes)
+    if ray is not None:
+        return 1
+    chosen = auto_jobs(units, n_plants)
+    if chosen == 1:
+        for name, seed in units:
+            if (name, seed) not in loaded:
+                loaded[(name, seed)] = load_controller(name, task, seed=seed)
+    return chosen
+
+
 def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[int]]:
     """The plants of one controller's jobs. An agent's network acts on the whole batch of plants at once, and its
     actions round differently with the batch's size (a matrix product's blocking), so an agent runs every plant in
@@ -300,7 +359,7 @@ def _header(task: Task, version: str, reference: str, seed: int, episodes: int, 
 def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str | Task = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
-                  all_seeds: bool = False, reference: str | None = None, jobs: int = 1) -> dict:
+                  all_seeds: bool = False, reference: str | None = None, jobs: int | str = 1) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
@@ -308,19 +367,18 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     otherwise). With `ray` (an address, or "" for a local cluster) controllers x seeds x chunks of
     CHUNK episodes run as Ray tasks; each episode depends only on its seeds, so the numbers are the
     local run's; with `jobs` > 1 they run so in that many local worker processes (`distributed.run_jobs`), with
-    the same numbers. Every controller is compared on the same plants with `reference` (default
-    `REFERENCE`, pid-pf-robust: the strongest deployable classical controller; run even where
-    `controllers` leaves it out) and with pid-robust. Baselines run in environment version `env_version`
-    (v1: the loop as commissioned; v0: the paper's analog loop), with the gains tuned for it; the default
-    controllers are the baselines and the agents trained in that version. A controller of your own (a
-    `control.base.Controller` with a new `name`, its `env_id`, `env_kwargs` and `predict`) may stand in the list
-    beside the names: it runs in its own environment, in this process (not with `ray`), and is compared as any
-    other (docs/benchmark.md)."""
+    the same numbers ("auto": `auto_jobs`, processes where an agent or an MPC bound runs). Every controller is
+    compared on the same plants with `reference` (default `REFERENCE`, pid-pf-robust: the strongest deployable
+    classical controller; run even where `controllers` leaves it out) and with pid-robust. Baselines run in
+    environment version `env_version` (v1: the loop as commissioned; v0: the paper's analog loop), with the gains
+    tuned for it; the default controllers are the baselines and the agents trained in that version. A controller
+    of your own (a `control.base.Controller` with a new `name`, its `env_id`, `env_kwargs` and `predict`) may stand
+    in the list beside the names: it runs in its own environment, in this process (not with `ray`), and is
+    compared as any other (docs/benchmark.md)."""
 
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {shown(env_version)} is invalid: one of {list(ENV_VERSIONS)}")
     env_id = env_id_for("gain", env_version)
-    jobs = integer("jobs", jobs, lo=1, hi=1024)
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
     if episodes is None:
@@ -330,23 +388,22 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if own and ray is not None:
         raise ValueError(f"ray = {shown(ray)} is invalid with a Controller object of your own ({', '.join(own)}): "
                          "it runs in this process; give ray=None")
-    if own and jobs > 1:
-        raise ValueError(f"jobs = {jobs} is invalid with a Controller object of your own ({', '.join(own)}): it runs "
-                         "in this process; give jobs=1")
     reference = REFERENCE if reference is None else reference
     if not isinstance(reference, str) or not reference:
         raise ValueError(f"--reference {shown(reference)} is invalid: a baseline {baseline_names()} or an agent")
     if reference not in names:
         names = [reference] + names  # loaded first: an unknown name fails at once, in one line
+    processes = _processes(jobs, own)
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     result = _header(t, env_version, reference, seed, episodes, all_seeds)
     label = f"benchmark {t.name}"
-    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and jobs == 1)
+    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and processes == 1)
+    processes = _settle_auto(processes, units, loaded, episodes, ray, t)
     plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     result["plants"] = plants
     start = time.time()
-    records = _collect_records(units, loaded, plants, env_id, ray, progress, jobs, label)
+    records = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label)
     firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
     for name in names:
         recs = [r for (n, _), part in records.items() if n == name for r in part]

@@ -5,6 +5,19 @@ from __future__ import annotations
 import argparse
 
 
+def jobs_value(text: str) -> int | str:
+    """--jobs of `millvib benchmark`: a whole number >= 1 or auto."""
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 1024:
+        raise argparse.ArgumentTypeError(f"{text!r} is invalid: a whole number from 1 to 1024, or auto")
+    return value
+
+
 def add_train_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--algo", required=True, choices=["ppo", "sac", "recurrentppo"],
                    help="algorithm; hyperparameters come from configs/agents/<algo>.yml")
@@ -91,11 +104,12 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "
                         "at ADDRESS; results equal the local run's for the same seed")
-    p.add_argument("--jobs", type=int, default=1,
-                   help="local worker processes for controllers x episode chunks (default 1: this process); each "
-                        "episode depends only on its seeds, so the numbers are the same for any number. Worth it "
-                        "where the MPC bounds or agents run (their rows take seconds), not for the classical "
-                        "controllers alone, whose workers would spend longer loading them than running them")
+    p.add_argument("--jobs", type=jobs_value, default="auto",
+                   help="local worker processes for controllers x episode chunks, or auto (the default): as many "
+                        "as the usable cores (at most 4, and at most MILLVIB_NUM_THREADS where set) when the MPC "
+                        "bounds or agents run, whose rows take seconds, and 1 (this process) for the classical "
+                        "controllers alone, whose workers would spend longer loading them than running them. Each "
+                        "episode depends only on its seeds, so the numbers are the same for any number")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--no-figures", action="store_true",
