@@ -94,3 +94,28 @@ def test_a_run_tunes_every_entry_in_order_each_on_the_one_it_builds_on(monkeypat
     assert shared == {n: {"from_task": "startup"} for n in ("pid-oracle", "lqr-oracle", "pid-pf-oracle")}
     with pytest.raises(ValueError, match="jobs = 0 is invalid"):
         tune_task("startup", only=["pid-oracle"], grid=2, progress=False, version="v1", jobs=0)
+
+
+def test_a_tune_of_some_entries_says_what_it_replaces_and_keeps_the_whole_tunes_time(monkeypatch, tmp_path, capsys):
+    """`millvib tune --only pid-adaptive`: pid-adaptive's cost is that of the forgetting time it took (the lowest of
+    its candidates'), compared with the shipped entry's; the file's wall_time_s stays the whole tune's."""
+    import yaml
+
+    from millvib_env.cli import main as cli_main
+    from millvib_env.control.factory import control_config_path
+    from millvib_env.tasks import get_task
+    from millvib_env.tuning import baselines
+
+    shipped = yaml.safe_load(control_config_path(get_task("rolling"), "v1").read_text())
+    old = min(shipped["pid-adaptive"]["tuning_costs"].values())
+    entry = {**shipped["pid-adaptive"], "tuning_costs": {"0.1": old + 1.0, "0.2": old - 0.5}}
+    monkeypatch.setattr(baselines, "tune_task", lambda t, only, **k: {"pid-adaptive": entry})
+    out = tmp_path / "rolling.yaml"
+    assert cli_main(["tune", "--task", "rolling", "--only", "pid-adaptive", "--out", str(out)]) == 0
+    assert f"pid-adaptive: replaces {old:.4g} with {old - 0.5:.4g}" in capsys.readouterr().out
+    written = yaml.safe_load(out.read_text())
+    assert written["wall_time_s"] == shipped["wall_time_s"] and written["pid-adaptive"] == entry
+    dearer = {**entry, "tuning_costs": {"0.1": old + 1.0}}
+    monkeypatch.setattr(baselines, "tune_task", lambda t, only, **k: {"pid-adaptive": dearer})
+    assert cli_main(["tune", "--task", "rolling", "--only", "pid-adaptive", "--out", str(out)]) == 0
+    assert "pid-adaptive: kept the existing entry" in capsys.readouterr().out

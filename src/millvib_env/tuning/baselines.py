@@ -21,7 +21,8 @@ All on the task's tuning seeds (configs/tasks.yaml), disjoint from its validatio
 The result goes to ``--out FILE`` (the task's shipped control config with the tuned entries replaced,
 so it can be read back), or with ``--write-config`` into configs/control/<task>.yaml. Either way an
 entry that costs more on its tuning plants than the entry it would replace is kept out and reported,
-unless ``--force`` (a 2-trial Optuna study never replaces a better shipped baseline silently).
+unless ``--force`` (a 2-trial Optuna study never replaces a better shipped baseline silently). A run
+of some entries (``--only``) keeps the file's ``wall_time_s``, the whole tune's, and prints its own.
 """
 
 from __future__ import annotations
@@ -330,13 +331,17 @@ def _table(entry: dict, version: str = "v0"):
 
 
 def _cost(entry: dict | None) -> float | None:
-    """An entry's tuning cost (a table's: its mean over the grid), None where it has none."""
+    """An entry's tuning cost (a table's: its mean over the grid; pid-adaptive's: that of the forgetting time it
+    took, the lowest of its candidates'), None where it has none."""
     if not isinstance(entry, dict):
         return None
     if "tuning_cost" in entry:
         return float(entry["tuning_cost"])
-    if "tuning_costs" in entry and isinstance(entry["tuning_costs"], list):
-        return float(np.mean(entry["tuning_costs"]))
+    costs = entry.get("tuning_costs")
+    if isinstance(costs, list):
+        return float(np.mean(costs))
+    if isinstance(costs, dict) and costs:
+        return float(min(costs.values()))
     return None
 
 
@@ -351,8 +356,11 @@ def merge_entries(shipped: dict, tuned: dict, *, force: bool = False) -> tuple[d
                          "(--force replaces it)")
             continue
         merged[name] = entry
-        notes.append(f"{name}: {'new' if old is None else f'replaces {old:.4g} with'} "
-                     f"{'' if new is None else f'{new:.4g}'}".rstrip())
+        if old is not None:
+            said = f"replaces {old:.4g} with"
+        else:
+            said = "replaces the existing entry (no tuning cost to compare)" if name in shipped else "new"
+        notes.append(f"{name}: {said} {'' if new is None else f'{new:.4g}'}".rstrip())
     return merged, notes
 
 
@@ -381,11 +389,13 @@ def tune_from_cli(args) -> int:
     merged, notes = merge_entries(shipped, tuned, force=args.force)
     merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um (a diverged episode: at "
                               f"least 1000), gain-schedule env {version} config {t.config}, gains held fixed")
-    merged["wall_time_s"] = round(time.time() - start, 1)
+    took = round(time.time() - start, 1)
+    if not args.only or "wall_time_s" not in merged:  # a run of some entries leaves the whole tune's time as it was
+        merged["wall_time_s"] = took
     header = (f"# Written by `millvib tune --task {t.name} --env-version {version}` (millvib_env.tuning.baselines: "
               "the method of each entry is in its `how`).\n")
     write_text_atomic(target, header + yaml.safe_dump(merged, sort_keys=False, width=110))
     for line in notes:
         print(line)
-    print(f"wrote {target} ({merged['wall_time_s']} s)")
+    print(f"wrote {target} ({took} s)")
     return 0
