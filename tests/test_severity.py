@@ -162,3 +162,32 @@ def test_rows_of_records_give_each_records_own_figures(quantity):
         vibration_severity_rows(records, FS, workers=0)
     with pytest.raises(ValueError, match="2-D"):
         vibration_severity_rows(records[0], FS)
+
+
+@pytest.mark.parametrize("n", [10001, 9001, 1000, 3])
+@pytest.mark.parametrize("quantity", ["acceleration", "velocity", "displacement"])
+def test_the_spectrum_from_a_dct_is_the_fft_of_the_mirror_extension(n, quantity):
+    """The severity's spectra come from the records' n-point DCT-II or DST-II (`severity._extension_bins`), which
+    equals the real FFT of the 2n-sample mirror extension (`_smooth_extension`, the definition) in exact
+    arithmetic. Measured: within 6e-16 of the largest bin at the environments' lengths (10,001 and 9,001); held to
+    1e-12 (a wrong twiddle, sign or index is off by the bins' own size). Every bin, DC and Nyquist included, and
+    the public spectrum over a band up to the Nyquist frequency."""
+    from scipy import fft as sfft
+
+    from millvib_env import severity
+
+    rng = np.random.default_rng(n)
+    x = np.cumsum(rng.normal(size=(4, n)), axis=1) * 1e-3
+    fs = 10_000.0
+    want = sfft.rfft(severity._smooth_extension(x, fs, quantity), axis=1)
+    got = severity._extension_bins(severity._detrended(x, fs, quantity), quantity == "velocity", np.arange(n + 1),
+                                   workers=2)
+    assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+    if n >= 1000:
+        band = (10.0, fs / 2)
+        freqs, vel = severity.band_velocity_spectrum(x[0], fs, quantity=quantity, band=band)
+        assert np.array_equal(freqs, sfft.rfftfreq(2 * n, 1.0 / fs))
+        inside = (freqs >= band[0]) & (freqs <= band[1])
+        assert not vel[~inside].any()
+        jw = (2j * np.pi * freqs[inside]) ** {"acceleration": -1, "velocity": 0, "displacement": 1}[quantity]
+        assert np.max(np.abs(vel[inside] / jw - want[0, inside])) <= 1e-12 * np.max(np.abs(want[0]))
