@@ -362,3 +362,25 @@ def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_
     for fig in drawn:
         texts_inside_and_panels_apart(fig)
         plt.close(fig)
+
+
+@pytest.mark.slow  # a fresh process and two workers: seconds
+def test_a_benchmark_whose_agents_run_in_workers_loads_no_learner_in_the_parent(tmp_path):
+    """An agent's network loads at its first use (`AgentPolicy.model`): where every agent run goes to a worker
+    process (rolling has no named scenarios), the parent imports neither torch nor SB3, and the numbers are the
+    one-process run's."""
+    import subprocess
+    import sys
+
+    kw = dict(task="rolling", all_seeds=True, episodes=3, progress=False, reference="pid-robust")
+    code = ("import sys, json; from millvib_env.evaluation.benchmark import run_benchmark, public_json\n"
+            "if __name__ == '__main__':\n"
+            f"    r = run_benchmark(['dagger-residual-preview-rolling'], jobs=2, **{kw!r})\n"
+            f"    open({str(tmp_path / 'two.json')!r}, 'w').write(json.dumps(public_json(r)))\n"
+            "    print('torch' in sys.modules, 'stable_baselines3' in sys.modules)")
+    script = tmp_path / "run.py"
+    script.write_text(code)
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert run.stdout.strip().splitlines()[-1] == "False False", run.stdout + run.stderr
+    one = public_json(run_benchmark(["dagger-residual-preview-rolling"], **kw))
+    assert json.loads((tmp_path / "two.json").read_text()) == json.loads(json.dumps(one))

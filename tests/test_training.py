@@ -197,6 +197,7 @@ def test_an_agents_deterministic_actions_are_sb3s_predict(name):
     matrix products are not bit-reproducible from call to call (here the first call of a process differs from
     the next ones by up to 3e-6 in about half the processes, in SB3's predict alone)."""
     agent = load_controller(name, seed=agent_seeds(name)[0])
+    assert agent._model is None and agent.model is not None  # the network loads at its first use
     if agent.recurrent:
         assert agent._act is None  # the LSTM's state goes through SB3's predict
         return

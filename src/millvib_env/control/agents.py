@@ -10,6 +10,7 @@ import importlib.util
 import json
 import re
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.manifest import verify_agent
 from millvib_env.control.named import resolve_named_gains_for
-from millvib_env.control.normalization import STATS_FILE, load_obs_stats
+from millvib_env.control.normalization import STATS_FILE, ObsStats, load_obs_stats
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task, takes_task
@@ -157,7 +158,12 @@ def check_agent(name: str) -> None:
 
 
 class AgentPolicy(Controller):
-    """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics."""
+    """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics.
+
+    Made from its folder, it checks the folder (the manifest of a shipped agent, the card, the files it needs and
+    the statistics); its learner library (torch and SB3, 2 s at a process's first agent) and network load at the
+    first use of `model`, `obs_stats` or `predict`. A benchmark whose agents run in worker processes then loads
+    none in the parent, which needs only their cards."""
 
     card: dict
     seed: int
@@ -177,40 +183,63 @@ class AgentPolicy(Controller):
         # a card may name the gain set its policy builds on (``residual_gains: pid-pf-robust``): numbers from here on
         self.env_kwargs = resolve_named_gains_for(self.card.get("env_kwargs", {}), self.task,
                                                   version=env_version(self.env_id))
-        algo = str(self.card["algo"]).lower()
+        self.algo = str(self.card["algo"]).lower()
         self.backend = str(self.card.get("backend", "sb3"))  # the library it was trained with
         self.model_format = str(self.card.get("model_format", self.backend))  # the library model.zip is for
-        cls = algo_class(algo, self.model_format)
-        self.recurrent = algo == "recurrentppo"
-        model_path = folder / "model.zip"
-        if not model_path.is_file():
-            raise ValueError(f"{shown_path(model_path)} is missing: not a complete agent folder")
-        if self.model_format == "sb3":  # torch's (SB3 imported it): a small network acts faster on one thread
-            one_torch_thread()
-        try:
-            self.model = cls.load(model_path, device="cpu")
-        except Exception as err:
-            raise ValueError(f"{shown_path(model_path)} cannot be loaded: {type(err).__name__}: "
-                             f"{str(err)[:200]}") from None
-        self.obs_stats = None
+        self.recurrent = self.algo == "recurrentppo"
+        self._model_path = folder / "model.zip"
+        if not self._model_path.is_file():
+            raise ValueError(f"{shown_path(self._model_path)} is missing: not a complete agent folder")
         normalize = self.card.get("normalize", "None")
         if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \
                 not normalize.strip().startswith(("{", "dict(")):
             raise ValueError(f"{card_path}: normalize = {shown(normalize)} is invalid: 'None' or the VecNormalize "
                              "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
-        if normalize.strip() not in ("None", "False", "", "{}"):
+        self._stats_path = folder / STATS_FILE if normalize.strip() not in ("None", "False", "", "{}") else None
+        if self._stats_path is not None:
+            load_obs_stats(self._stats_path)  # a missing or broken file fails here, not at the first step
+        self._model: Any = None
+        self._obs_stats: ObsStats | None = None
+        self._act: Callable | None = None
 
-            self.obs_stats = load_obs_stats(folder / STATS_FILE, int(self.model.observation_space.shape[0]))
-        self._act = None if self.recurrent or self.model_format != "sb3" else deterministic_actor(self.model.policy)
+    def _load(self) -> None:
+        """The learner library, the network and the statistics (checked against the network's observations)."""
+        cls = algo_class(self.algo, self.model_format)
+        if self.model_format == "sb3":  # torch's (SB3 imported it): a small network acts faster on one thread
+            one_torch_thread()
+        try:
+            model = cls.load(self._model_path, device="cpu")
+        except Exception as err:
+            raise ValueError(f"{shown_path(self._model_path)} cannot be loaded: {type(err).__name__}: "
+                             f"{str(err)[:200]}") from None
+        if self._stats_path is not None:
+            self._obs_stats = load_obs_stats(self._stats_path, int(model.observation_space.shape[0]))
+        self._act = None if self.recurrent or self.model_format != "sb3" else deterministic_actor(model.policy)
+        self._model = model
+
+    @property
+    def model(self):
+        """The learner (an SB3 or sbx algorithm object), loaded at the first use."""
+        if self._model is None:
+            self._load()
+        return self._model
+
+    @property
+    def obs_stats(self):
+        """The VecNormalize observation statistics (`normalization.ObsStats`), or None where the agent has none."""
+        if self._model is None:
+            self._load()
+        return self._obs_stats
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
-        return obs if self.obs_stats is None else self.obs_stats.normalize(obs)
+        stats = self.obs_stats
+        return obs if stats is None else stats.normalize(obs)
 
     def on_reset(self, infos, indices) -> None:
         self._own_start = True  # a plain loop's recurrent state starts afresh with the episode
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        obs = self.normalize(np.asarray(observation, dtype=np.float32))
+        obs = self.normalize(np.asarray(observation, dtype=np.float32))  # loads the agent at its first step
         if deterministic and self._act is not None:
             shape = self.model.observation_space.shape
             if obs.shape == shape:
