@@ -305,6 +305,11 @@ def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
     one = public_json(run_benchmark(["pid-robust", "pid-paper"], **kw))
     two = public_json(run_benchmark(["pid-robust", "pid-paper"], jobs=2, **kw))
     assert one == two and set(one["controllers"]) == {"pid-robust", "pid-paper"}
+    # the named scenarios run as jobs too, one per controller, and come back in the controllers' order
+    kw["scenarios"] = True
+    one = public_json(run_benchmark(["pid-robust", "pid-paper"], **kw))
+    two = public_json(run_benchmark(["pid-robust", "pid-paper"], jobs=2, **kw))
+    assert one == two and list(two["scenarios"]) == ["pid-robust", "pid-paper"] and two["scenarios"]["pid-paper"]
     with pytest.raises(ValueError, match="jobs = 0 is invalid"):
         run_benchmark(["pid-robust"], jobs=0, **kw)
 

@@ -311,27 +311,63 @@ def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[
     return [plants[i:i + size] for i in range(0, len(plants), size)]
 
 
+def scenario_records(name: str, task: Task, plant: int, env_id: str = "MillVib-GainSchedule-v0",
+                     agent_seed: int | None = None) -> dict[str, dict]:
+    """`_scenario_records` of one controller by name (a job of a distributed benchmark: the Task crosses to the
+    worker as it is); an agent on its training seed `agent_seed`, a baseline in `env_id`'s version."""
+    return _scenario_records(load_controller(name, task, seed=agent_seed, version=env_version(env_id)), plant)
+
+
+def benchmark_job(kind: str, **job):
+    """One job of a distributed benchmark: a controller's episodes on some plants (`episode_records`) or its
+    named scenarios (`scenario_records`)."""
+    return (episode_records if kind == "episodes" else scenario_records)(**job)
+
+
+def _is_slow(name: str, seed: int | None) -> bool:
+    return seed is not None or name in SLOW_BASELINES
+
+
 def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
-                     progress: bool, processes: int = 1, label: str = "benchmark") -> dict[tuple, list[EpisodeRecord]]:
-    """Every unit's (controller, agent seed) episode records on `plants`: in this process, or as jobs (`_chunks`)
-    on Ray or in `processes` local worker processes (each episode depends only on its seeds, so the records are
-    the same)."""
+                     progress: bool, processes: int = 1, label: str = "benchmark",
+                     scenarios: bool = False) -> tuple[dict[tuple, list[EpisodeRecord]], dict[str, dict]]:
+    """Every unit's (controller, agent seed) episode records on `plants` and, with `scenarios`, each controller's
+    named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs
+    (`_chunks`, and one per controller's scenarios) on Ray or in `processes` local worker processes: each episode
+    depends only on its seeds, so the numbers are the same. The scenarios of the slow rows (agents, the MPC
+    bounds) are submitted first and the others last, so that no long job starts at the end."""
     records: dict[tuple, list[EpisodeRecord]] = {}
+    firsts: dict[str, tuple] = {}
+    for n, s in units if scenarios else []:
+        if (n, s) in loaded:
+            firsts.setdefault(n, (n, s))
+    scenario_units = list(firsts.values())
     if ray is not None or processes > 1:
         task_of = {n: c.task for (n, _), c in loaded.items()}  # each controller's, bound where it was loaded
-        jobs = [{"name": n, "task": task_of[n], "seeds": chunk, "env_id": env_id, "agent_seed": s}
-                for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
+        episodes = [{"kind": "episodes", "name": n, "task": task_of[n], "seeds": chunk, "env_id": env_id,
+                     "agent_seed": s}
+                    for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
+        named = [{"kind": "scenarios", "name": n, "task": task_of[n], "plant": plants[0], "env_id": env_id,
+                  "agent_seed": s} for n, s in scenario_units]
+        jobs = [j for j in named if _is_slow(j["name"], j["agent_seed"])] + episodes + \
+            [j for j in named if not _is_slow(j["name"], j["agent_seed"])]
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
         agents = any(c.card is not None for c in loaded.values())
-        parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
+        parts = run_jobs(benchmark_job, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"{label} ({'ray' if ray is not None else f'{processes} processes'})",
                          preload=("torch", "stable_baselines3") if agents else ())
+        found = {}
         for job, part in zip(jobs, parts):
-            records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
-    else:
-        for unit in tqdm(units, desc=label, unit="run", disable=not progress):
-            records[unit] = _run(loaded[unit], plants)
-    return records
+            if job["kind"] == "episodes":
+                records.setdefault((job["name"], job["agent_seed"]), []).extend(part)
+            else:
+                found[job["name"]] = part
+        return records, {n: found[n] for n, _ in scenario_units}
+    for unit in tqdm(units, desc=label, unit="run", disable=not progress):
+        records[unit] = _run(loaded[unit], plants)
+    return records, {n: _scenario_records(loaded[(n, s)], plants[0])
+                     for n, s in tqdm(scenario_units, desc=f"{label}: scenarios", unit="controller",
+                                      disable=not progress, leave=False)}
 
 
 def _scenario_records(ctrl, plant: int) -> dict[str, dict]:
@@ -403,15 +439,13 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     result["plants"] = plants
     start = time.time()
-    records = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label)
+    records, result["scenarios"] = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label,
+                                                    scenarios=scenarios)
     firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
     for name in names:
         recs = [r for (n, _), part in records.items() if n == name for r in part]
         result["controllers"][name] = {**summarize(recs), "env_id": firsts[name].env_id}
         result["records"][name] = recs
-    if scenarios:
-        for name in tqdm(names, desc=f"{label}: scenarios", unit="controller", disable=not progress, leave=False):
-            result["scenarios"][name] = _scenario_records(firsts[name], plants[0])
     if progress:
         print(f"{label}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result)
