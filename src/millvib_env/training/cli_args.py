@@ -105,11 +105,12 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "
                         "at ADDRESS; results equal the local run's for the same seed")
     p.add_argument("--jobs", type=jobs_value, default="auto",
-                   help="local worker processes for controllers x episode chunks, or auto (the default): as many "
-                        "as the usable cores (at most 4, and at most MILLVIB_NUM_THREADS where set) when the MPC "
-                        "bounds or agents run, whose rows take seconds, and 1 (this process) for the classical "
-                        "controllers alone, whose workers would spend longer loading them than running them. Each "
-                        "episode depends only on its seeds, so the numbers are the same for any number")
+                   help="local worker processes for controllers x episode chunks and the named scenarios, or auto "
+                        "(the default): as many as the usable cores (at most 4, and at most MILLVIB_NUM_THREADS "
+                        "where set) where an MPC bound or two agent runs (agents x training seeds) take part on at "
+                        "least 20 plants, and 1 (this process) otherwise: the classical controllers' workers would "
+                        "spend longer loading them than running them, and one agent runs all its plants as one "
+                        "job. Each episode depends only on its seeds, so the numbers are the same for any number")
     p.add_argument("--json", metavar="PATH", help="write the summary JSON here")
     p.add_argument("--out", metavar="DIR", help="write per-episode CSV, a markdown table and plots here")
     p.add_argument("--no-figures", action="store_true",
