@@ -124,18 +124,12 @@ def _detrended(x: np.ndarray, fs: float, quantity: str) -> np.ndarray:
     return y
 
 
-def _smooth_extension(x: np.ndarray, fs: float, quantity: str) -> np.ndarray:
-    """The records (rows of `x`), trend-corrected and mirror-extended to 2n samples (module docstring)."""
-    y = _detrended(x, fs, quantity)
-    return np.concatenate([y, -y[:, ::-1] if quantity == "velocity" else y[:, ::-1]], axis=1)
-
-
 def _extension_bins(y: np.ndarray, odd: bool, bins: np.ndarray, workers: int = 1) -> np.ndarray:
     """Bins `bins` (0 <= k <= n) of the real FFT of the rows' mirror extensions to 2n samples, [y, y reversed]
     (even) or [y, -y reversed] (odd), from the n-point DCT-II or DST-II of y: with theta_k = pi k / (2 n),
     X_k = exp(i theta_k) DCT-II(y)_k and X_k = -i exp(i theta_k) DST-II(y)_(k-1) (scipy's unnormalised
-    transforms; X_0 of an odd and X_n of an even extension are 0). The same numbers as `sfft.rfft` of
-    `_smooth_extension` in exact arithmetic, within rounding in floating point (tests/test_severity.py), and
+    transforms; X_0 of an odd and X_n of an even extension are 0). The same numbers as `sfft.rfft` of the
+    extension in exact arithmetic, within rounding in floating point (tests/test_severity.py), and
     3-4 times faster at the environments' record lengths, 10,001 and 9,001 samples, whose extensions' lengths
     (2 x 73 x 137, 2 x 9001) are slow for an FFT (docs/performance.md)."""
     n = y.shape[1]
