@@ -149,13 +149,14 @@ def _extension_bins(y: np.ndarray, odd: bool, bins: np.ndarray, workers: int = 1
 @dataclass(frozen=True)
 class _BandSpectra:
     """One-sided velocity spectra of records over their 2n-sample mirror extension, kept on the band's bins (the
-    rest are zero): `freqs` (Hz) and `vel` (rows) of those bins, each bin's Parseval `weight` (2, or 1 for DC and
-    Nyquist) and the extension's length `n2` = 2n."""
+    rest are zero): `freqs` (Hz) and `vel` (rows) of those bins, the first one's index `first`, each bin's
+    Parseval `weight` (2, or 1 for Nyquist; DC is never in a band) and the extension's length `n2` = 2n."""
 
     freqs: np.ndarray
     vel: np.ndarray
     weight: np.ndarray
     n2: int
+    first: int
 
     def mean_square(self, mask: np.ndarray | None = None) -> np.ndarray:
         """Each row's mean square (Parseval) over the kept bins, or over those of them where `mask` (per bin, or
@@ -181,7 +182,7 @@ def _velocity_spectra(x: np.ndarray, fs: float, quantity: str, band: tuple[float
     vel = _extension_bins(y, quantity == "velocity", bins, workers)
     if bins.size:
         vel *= (2j * np.pi * freqs[bins]) ** _POWER[quantity]
-    return _BandSpectra(freqs[bins], vel, weight, 2 * n)
+    return _BandSpectra(freqs[bins], vel, weight, 2 * n, int(bins[0]) if bins.size else 0)
 
 
 def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity = "acceleration",
@@ -195,9 +196,7 @@ def band_velocity_spectrum(signal: np.ndarray, fs: float, *, quantity: Quantity 
     spectra = _velocity_spectra(x[None, :], fs, quantity, band)
     freqs = sfft.rfftfreq(spectra.n2, d=1.0 / fs)
     out = np.zeros(freqs.size, dtype=complex)
-    if spectra.freqs.size:
-        first = int(round(spectra.freqs[0] * spectra.n2 / fs))
-        out[first:first + spectra.freqs.size] = spectra.vel[0]
+    out[spectra.first:spectra.first + spectra.freqs.size] = spectra.vel[0]
     return freqs, out
 
 
