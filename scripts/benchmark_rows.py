@@ -44,10 +44,10 @@ def main() -> None:
         print(f"{name:36s} seeds {seeds}  {time.perf_counter() - start:6.2f} s", flush=True)
     if agents:
         agent = load_controller(agents[0], args.task)
-        shape = agent.model.observation_space.shape
+        shape = agent.policy.observation_space.shape
         obs = np.random.default_rng(0).standard_normal((args.episodes, *shape)).astype(np.float32)
         normalized = agent.normalize(obs)
-        act = deterministic_actor(agent.model.policy)
+        act = deterministic_actor(agent.policy)
         fast = per_call_us(lambda: act(normalized))
         sb3 = per_call_us(lambda: agent.model.predict(normalized, deterministic=True))
         norm = per_call_us(lambda: agent.normalize(obs))

@@ -191,18 +191,25 @@ def test_shipped_agents_load_and_run(name):
 
 @pytest.mark.parametrize("name", list_agents())
 def test_an_agents_deterministic_actions_are_sb3s_predict(name):
-    """`AgentPolicy.predict` runs PPO's and SAC's policies without SB3's per-call wrapping (`deterministic_actor`):
-    the same torch operations on the same inputs as SB3's own `predict`, batched and for one observation, on
-    observations beyond the training range too. Equal within 1e-5 of the action's unit range: torch's float32
-    matrix products are not bit-reproducible from call to call (here the first call of a process differs from
-    the next ones by up to 3e-6 in about half the processes, in SB3's predict alone)."""
+    """`AgentPolicy.predict` runs PPO's and SAC's policies without SB3's per-call wrapping (`deterministic_actor`)
+    and without their learner (`acting_policy`: the policy alone, made from the file with no optimiser): the same
+    torch operations on the same weights as the `predict` of the learner SB3's own `load` makes, batched and for one
+    observation, on observations beyond the training range too. Equal within 1e-5 of the action's unit range:
+    torch's float32 matrix products are not bit-reproducible from call to call (here the first call of a process
+    differs from the next ones by up to 3e-6 in about half the processes, in SB3's predict alone)."""
     agent = load_controller(name, seed=agent_seeds(name)[0])
-    assert agent._model is None and agent.model is not None  # the network loads at its first use
+    assert agent._policy is None and agent._model is None and agent.policy is not None  # loaded at the first use
     if agent.recurrent:
         assert agent._act is None  # the LSTM's state goes through SB3's predict
         return
     assert agent._act is not None
-    shape = agent.model.observation_space.shape
+    if agent.model_format == "sb3":  # acting loaded no learner and built no optimiser
+        import torch
+
+        optimizers = [m.optimizer for m in agent.policy.modules() if hasattr(m, "optimizer")]
+        assert agent._model is None and optimizers
+        assert not any(isinstance(o, torch.optim.Optimizer) for o in optimizers)
+    shape = agent.policy.observation_space.shape
     obs = (np.random.default_rng(3).standard_normal((16, *shape)) * 3.0).astype(np.float32)
     normalized = agent.normalize(obs)
     close = dict(rtol=0.0, atol=1e-5)
@@ -210,7 +217,7 @@ def test_an_agents_deterministic_actions_are_sb3s_predict(name):
     one = agent.predict(obs[5])[0]
     assert one.shape == agent.model.action_space.shape
     np.testing.assert_allclose(one, agent.model.predict(normalized[5], deterministic=True)[0], **close)
-    net = getattr(agent.model.policy, "action_net", None)
+    net = getattr(agent.policy, "action_net", None)
     if net is not None:  # PPO: means beyond the action space are clipped as SB3 clips them
         import torch
 

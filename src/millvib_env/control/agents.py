@@ -161,9 +161,10 @@ class AgentPolicy(Controller):
     """A trained SB3 agent (PPO, SAC or RecurrentPPO) with its VecNormalize observation statistics.
 
     Made from its folder, it checks the folder (the manifest of a shipped agent, the card, the files it needs and
-    the statistics); its learner library (torch and SB3, 2 s at a process's first agent) and network load at the
-    first use of `model`, `obs_stats` or `predict`. A benchmark whose agents run in worker processes then loads
-    none in the parent, which needs only their cards."""
+    the statistics); its learner library (torch and SB3, 1 s at a process's first agent) and network load at the
+    first use of `policy`, `model`, `obs_stats` or `predict`. A benchmark whose agents run in worker processes then
+    loads none in the parent, which needs only their cards. A PPO or SAC saved by SB3 acts through its policy
+    alone (`acting_policy`): the learner around it (`model`) loads only where asked for."""
 
     card: dict
     seed: int
@@ -199,35 +200,59 @@ class AgentPolicy(Controller):
         if self._stats_path is not None:
             load_obs_stats(self._stats_path)  # a missing or broken file fails here, not at the first step
         self._model: Any = None
+        self._policy: Any = None
         self._obs_stats: ObsStats | None = None
         self._act: Callable | None = None
 
-    def _load(self) -> None:
-        """The learner library, the network and the statistics (checked against the network's observations)."""
-        cls = algo_class(self.algo, self.model_format)
-        if self.model_format == "sb3":  # torch's (SB3 imported it): a small network acts faster on one thread
-            one_torch_thread()
+    @property
+    def _policy_only(self) -> bool:
+        """Whether the agent acts through its policy alone (`acting_policy`): a PPO or SAC in SB3's format."""
+        return self.model_format == "sb3" and self.algo in ("ppo", "sac")
+
+    def _loaded(self, load: Callable) -> Any:
         try:
-            model = cls.load(self._model_path, device="cpu")
+            return load()
         except Exception as err:
             raise ValueError(f"{shown_path(self._model_path)} cannot be loaded: {type(err).__name__}: "
                              f"{str(err)[:200]}") from None
+
+    def _load(self) -> None:
+        """The network (the policy alone where it acts so, else the learner) and the statistics (checked against
+        the network's observations)."""
+        if self._policy_only:
+            one_torch_thread()  # a small network acts faster on one thread
+            self._policy = self._loaded(lambda: acting_policy(self._model_path, self.algo))
+        else:
+            self._model = self._loaded(lambda: algo_class(self.algo, self.model_format).load(self._model_path,
+                                                                                             device="cpu"))
+            self._policy = self._model.policy
         if self._stats_path is not None:
-            self._obs_stats = load_obs_stats(self._stats_path, int(model.observation_space.shape[0]))
-        self._act = None if self.recurrent or self.model_format != "sb3" else deterministic_actor(model.policy)
-        self._model = model
+            self._obs_stats = load_obs_stats(self._stats_path, int(self._policy.observation_space.shape[0]))
+        self._act = None if self.recurrent or self.model_format != "sb3" else deterministic_actor(self._policy)
+
+    @property
+    def policy(self):
+        """The network that acts (an SB3 or sbx policy), loaded at the first use."""
+        if self._policy is None:
+            self._load()
+        return self._policy
 
     @property
     def model(self):
-        """The learner (an SB3 or sbx algorithm object), loaded at the first use."""
+        """The learner (an SB3 or sbx algorithm object), loaded at the first use: for a PPO or SAC in SB3's format
+        apart from the policy that acts, which keeps its own copy of the weights."""
         if self._model is None:
-            self._load()
+            if self._policy_only:
+                one_torch_thread()
+                self._model = self._loaded(lambda: algo_class(self.algo).load(self._model_path, device="cpu"))
+            else:
+                self._load()
         return self._model
 
     @property
     def obs_stats(self):
         """The VecNormalize observation statistics (`normalization.ObsStats`), or None where the agent has none."""
-        if self._model is None:
+        if self._policy is None:
             self._load()
         return self._obs_stats
 
@@ -241,7 +266,7 @@ class AgentPolicy(Controller):
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = self.normalize(np.asarray(observation, dtype=np.float32))  # loads the agent at its first step
         if deterministic and self._act is not None:
-            shape = self.model.observation_space.shape
+            shape = self.policy.observation_space.shape
             if obs.shape == shape:
                 return self._act(obs[None])[0], state
             if obs.shape[1:] == shape:
@@ -256,7 +281,34 @@ class AgentPolicy(Controller):
                 self._own_start = False
                 return action, None
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
-        return self.model.predict(obs, deterministic=deterministic)
+        return (self.policy if self._policy_only else self.model).predict(obs, deterministic=deterministic)
+
+
+class _NoOptimizer:
+    """What an acting policy gets for an optimiser (`acting_policy`): SB3's policies build theirs when they are
+    made, and torch's optimisers import `torch._dynamo` at a process's first (about 1 s)."""
+
+    def __init__(self, params, **kwargs):
+        pass
+
+
+def acting_policy(path: str | Path, algo: str):
+    """The policy of a PPO or SAC that SB3 saved at `path`, without its learner: made as SB3's ``load`` makes it
+    (the same class, spaces and keyword arguments from the file, the same weights), with no optimiser, in eval
+    mode. It acts as ``PPO.load(path).policy`` does (a test compares their actions); it cannot be trained."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, params, _ = load_from_zip_file(path, device="cpu")
+    if data is None:
+        raise ValueError("no data file in the archive")
+    kwargs = {k: v for k, v in data.get("policy_kwargs", {}).items() if k != "device"}  # as SB3's load
+    kwargs["optimizer_class"] = _NoOptimizer
+    if algo == "ppo":  # an on-policy learner passes its use_sde; an off-policy one keeps it in policy_kwargs
+        kwargs["use_sde"] = data["use_sde"]
+    policy = data["policy_class"](data["observation_space"], data["action_space"], lambda _: 0.0, **kwargs)
+    policy.load_state_dict(params["policy"])
+    policy.set_training_mode(False)
+    return policy
 
 
 def deterministic_actor(policy):

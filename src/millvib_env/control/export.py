@@ -59,13 +59,13 @@ def _deployed(agent):
 
     stats = agent.obs_stats
     algo = str(agent.card["algo"]).lower()
-    policy = sb3_sac_from_sbx(agent.model).policy if agent.model_format == "sbx" else agent.model.policy
+    policy = sb3_sac_from_sbx(agent.model).policy if agent.model_format == "sbx" else agent.policy
 
     class Deployed(torch.nn.Module):
         def __init__(self):
             super().__init__()
             self.policy = policy
-            dim = int(agent.model.observation_space.shape[0])
+            dim = int(policy.observation_space.shape[0])
             mean = np.zeros(dim) if stats is None else stats.mean
             scale = np.ones(dim) if stats is None else np.sqrt(stats.var + stats.epsilon)
             self.register_buffer("mean", torch.as_tensor(mean, dtype=torch.float32))
