@@ -44,3 +44,17 @@ def numba_in_a_worker() -> tuple:
     from millvib_env.plant.model import plant_rhs
 
     return len(plant_rhs.overloads) > 0, bool(parallel._is_initialized)
+
+
+def open_the_gate(i: int, gate: str, fail: bool = False, folder: str | None = None) -> tuple:
+    """Opens `tests._gate`'s gate (the workers may start), then fails (`fail`), finishes after 30 s writing a file
+    in `folder`, or returns at once (i, the pid of the process that ran it)."""
+    import os
+
+    Path(gate).write_text("open")
+    if fail:
+        raise ValueError(f"job {i} failed")
+    if folder is not None:
+        time.sleep(30)
+        Path(folder, f"finished-{i}").write_text("late")
+    return i, os.getpid()

@@ -85,6 +85,44 @@ def test_a_failing_job_stops_the_other_workers_instead_of_waiting_for_them(tmp_p
     assert not list(tmp_path.glob("finished-*"))
 
 
+def test_the_caller_runs_jobs_itself_while_its_workers_start_with_the_same_results(tmp_path, monkeypatch):
+    """While the fork server imports (torch, for agents: seconds), `run_jobs` runs jobs of `meanwhile` in the calling
+    process, from the last, and submits the others from the first: here the server's import waits until a job has
+    run (`tests._gate`), so the last job is the caller's and the first a worker's. The results are in the jobs'
+    order, and `on_result` hears of each job once."""
+    import multiprocessing as mp
+
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import open_the_gate
+
+    gate = tmp_path / "gate"
+    monkeypatch.setenv("MILLVIB_TEST_GATE", str(gate))
+    heard = []
+    out = run_jobs(open_the_gate, [{"i": i, "gate": str(gate)} for i in range(6)], processes=2,
+                   preload=("tests._gate",), meanwhile=range(6), on_result=lambda i, r: heard.append((i, r)))
+    assert [i for i, _ in out] == list(range(6)) and sorted(heard) == list(enumerate(out))
+    assert out[-1][1] == os.getpid() and out[0][1] != os.getpid()
+    assert not [p for p in mp.active_children() if p.is_alive()]
+
+
+def test_a_job_that_fails_in_the_caller_stops_the_workers_too(tmp_path, monkeypatch):
+    """A job of `meanwhile` that fails in the calling process ends the run as a worker's failure does: the workers
+    are stopped and their jobs never finish."""
+    import multiprocessing as mp
+
+    from millvib_env.distributed import run_jobs
+    from tests._jobs import open_the_gate
+
+    gate = tmp_path / "gate"
+    monkeypatch.setenv("MILLVIB_TEST_GATE", str(gate))
+    jobs = [{"i": 0, "gate": str(gate), "folder": str(tmp_path)}, {"i": 1, "gate": str(gate), "folder": str(tmp_path)},
+            {"i": 2, "gate": str(gate), "fail": True}]
+    with pytest.raises(ValueError, match="job 2 failed"):
+        run_jobs(open_the_gate, jobs, processes=2, preload=("tests._gate", "xml.dom.expatbuilder"), meanwhile=[2])
+    assert not [p for p in mp.active_children() if p.is_alive()]
+    assert not list(tmp_path.glob("finished-*"))
+
+
 def test_a_pool_that_asks_for_more_modules_gets_workers_that_have_them_imported():
     """A later pool whose `preload` the running fork server lacks (torch, after a pool of baselines) restarts it:
     its workers start with the module imported instead of each importing it. So do the modules a command of

@@ -23,7 +23,7 @@ import signal
 import threading
 from typing import Any, Callable, Iterator, Sequence
 
-__all__ = ["run_jobs", "ray_available", "expect_modules"]
+__all__ = ["run_jobs", "ray_available", "expect_modules", "start_workers"]
 
 
 def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
@@ -133,33 +133,128 @@ def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     return ctx
 
 
-def _run_pool(fn: Callable, jobs: list, processes: int, bar, preload: Sequence[str] = ()) -> list:
+@contextlib.contextmanager
+def _ctrl_c_ignored(ignore: bool = True) -> Iterator[None]:
+    """Ctrl-C ignored within the block, where this is the main thread (only it may set a handler)."""
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if ignore and main_thread else None
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _start_server(ctx) -> bool:
+    """Start `ctx`'s fork server if it is not running, without waiting for its imports; False where `ctx` has
+    none (spawned workers). The server starts while this process ignores Ctrl-C: an ignored signal is inherited
+    through exec, and the server hands its own start's handler to every worker it forks, so that a terminal's
+    Ctrl-C (sent to the whole process group) reaches none of them (a worker still importing would print a
+    traceback): it is the parent's to handle (`_run_pool`)."""
+    if ctx.get_start_method() != "forkserver":
+        return False
+    from multiprocessing import forkserver
+
+    with _ctrl_c_ignored():
+        forkserver.ensure_running()
+    return True
+
+
+def start_workers(fn: Callable, preload: Sequence[str] = ()) -> None:
+    """Start the fork server that `run_jobs(fn, ..., preload=preload)`'s local workers will come from, without
+    waiting for it: it imports the package and `preload` (torch and SB3 for agents: about 2 s) while this process
+    goes on with its own work, and the pool then finds it running (the same modules: no restart). Nothing where
+    the platform has no fork server."""
+    _start_server(_pool_context(fn, preload))
+
+
+def _report(on_result: Callable | None, index: int, result: Any) -> None:
+    if on_result is not None:
+        on_result(index, result)
+
+
+def _submit_meanwhile(pool, fn: Callable, jobs: list, n_workers: int, meanwhile: Sequence[int], here: dict,
+                      futures: dict, on_result: Callable | None, bar) -> None:
+    """Submit `jobs` to `pool` in order on a thread of their own, and meanwhile run jobs of `meanwhile` here, from
+    the last: the first submissions wait for the fork server's imports (seconds, with a core to spare), and this
+    process would only wait with them. It stops taking jobs once `n_workers` are submitted (the workers are up);
+    the job it is running then ends first. An error here stops the submissions."""
+    lock = threading.Lock()
+    given: set[int] = set()
+    up, stop = threading.Event(), threading.Event()
+    failed: list[BaseException] = []
+
+    def submit_all() -> None:
+        try:
+            for i in range(len(jobs)):
+                with lock:
+                    if stop.is_set():
+                        return
+                    if i in given:
+                        continue
+                    given.add(i)
+                futures[i] = pool.submit(_call, fn, jobs[i])
+                if len(futures) >= n_workers:
+                    up.set()
+        except BaseException as err:  # the pool shut down (this process's error or Ctrl-C) or failed to start
+            failed.append(err)
+        finally:
+            up.set()
+
+    submitter = threading.Thread(target=submit_all, name="millvib-submit", daemon=True)
+    submitter.start()
+    try:
+        spare = sorted(set(meanwhile), reverse=True)
+        while not up.is_set():
+            with lock:
+                i = next((k for k in spare if k not in given), None)
+                if i is None:
+                    break
+                given.add(i)
+            here[i] = fn(**jobs[i])
+            _report(on_result, i, here[i])
+            if bar is not None:
+                bar.update(1)
+    except BaseException:
+        stop.set()
+        raise
+    finally:
+        submitter.join()  # within the server's start at the most (an error above then goes on up)
+    if failed:
+        raise failed[0]
+
+
+def _run_pool(fn: Callable, jobs: list, processes: int, bar, preload: Sequence[str] = (),
+              on_result: Callable | None = None, meanwhile: Sequence[int] = ()) -> list:
     """The jobs in worker processes (`_pool_context`). Whatever ends the run early (a job's error, Ctrl-C,
     SIGTERM) stops the other workers at once instead of waiting for their jobs, then goes on up.
 
     A terminal's Ctrl-C reaches the whole process group, and a worker still importing would print a
-    traceback. So the workers start with Ctrl-C ignored: the pool starts them (and the fork server, at the first
-    pool) while this process ignores it, and an ignored signal is inherited through exec and kept by the fork
-    server for its forks (a blocked mask is not inherited by either); a Ctrl-C in those few milliseconds is not
-    seen."""
+    traceback. So the workers start with Ctrl-C ignored: forked from a fork server started while this process
+    ignored it (`_start_server`), or, spawned, started by the pool while this process ignores it (a blocked mask
+    is not inherited); a Ctrl-C in those few milliseconds is not seen. With a fork server, the jobs of `meanwhile`
+    (those that need none of `preload`) may run here while the workers start (`_submit_meanwhile`)."""
     n_workers = min(processes, len(jobs))
-    main_thread = threading.current_thread() is threading.main_thread()
+    ctx = _pool_context(fn, preload)
+    forked = _start_server(ctx)
     pool = None
+    here: dict[int, Any] = {}
+    futures: dict[int, cf.Future] = {}
     try:
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
-        try:
-            pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_start_worker,
-                                          initargs=(dict(os.environ),), mp_context=_pool_context(fn, preload))
-            futures = [pool.submit(_call, fn, job) for job in jobs[:n_workers]]  # each starts its worker
-        finally:
-            if main_thread:
-                signal.signal(signal.SIGINT, previous)
-        futures += [pool.submit(_call, fn, job) for job in jobs[n_workers:]]
-        for done in cf.as_completed(futures):
-            done.result()  # a job's error ends the run now, not after the others
+        pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_start_worker,
+                                      initargs=(dict(os.environ),), mp_context=ctx)
+        if forked and meanwhile:
+            _submit_meanwhile(pool, fn, jobs, n_workers, meanwhile, here, futures, on_result, bar)
+        else:
+            with _ctrl_c_ignored(not forked):
+                futures.update((i, pool.submit(_call, fn, jobs[i])) for i in range(n_workers))  # start the workers
+            futures.update((i, pool.submit(_call, fn, jobs[i])) for i in range(n_workers, len(jobs)))
+        index = {f: i for i, f in futures.items()}
+        for done in cf.as_completed(futures.values()):
+            _report(on_result, index[done], done.result())  # a job's error ends the run now, not after the others
             if bar is not None:
                 bar.update(1)
-        out = [f.result() for f in futures]
+        out = [here[i] if i in here else futures[i].result() for i in range(len(jobs))]
     except BaseException:
         if pool is not None:
             workers = list((getattr(pool, "_processes", None) or {}).values())
@@ -179,10 +274,15 @@ def _run_pool(fn: Callable, jobs: list, processes: int, bar, preload: Sequence[s
 
 
 def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, processes: int = 1,
-             num_cpus: float = 1.0, progress: bool = False, desc: str = "jobs", preload: Sequence[str] = ()) -> list:
+             num_cpus: float = 1.0, progress: bool = False, desc: str = "jobs", preload: Sequence[str] = (),
+             on_result: Callable[[int, Any], None] | None = None, meanwhile: Sequence[int] = ()) -> list:
     """`[fn(**job) for job in jobs]`, locally or on Ray (module docstring). `fn` must be importable
     (a module-level function). `preload`: modules the local workers need that `fn`'s module does not import
-    (imported once by the fork server, if this is the process's first pool)."""
+    (imported once by the fork server, if this is the process's first pool). `on_result(i, result)` is called in
+    this process as each job's result comes in (in the order they finish), so that it can work on them while
+    the others run; an error it raises ends the run as a job's would. `meanwhile`: the indices of jobs that this
+    process may run itself while its local workers start (jobs that need none of `preload`; `_submit_meanwhile`).
+    Every job's result is the same wherever it runs."""
     jobs = list(jobs)
     bar = None
     if progress:
@@ -194,19 +294,24 @@ def run_jobs(fn: Callable, jobs: Sequence[dict], *, ray: str | None = None, proc
             remote = rt.remote(num_cpus=num_cpus)(_call)
             refs = [remote.remote(fn, job) for job in jobs]
             pending = list(refs)
+            index = {ref: i for i, ref in enumerate(refs)}
             while pending:
                 done, pending = rt.wait(pending, num_returns=1)
+                for ref in done:
+                    if on_result is not None:
+                        on_result(index[ref], rt.get(ref))
                 if bar is not None:
                     bar.update(len(done))
             return rt.get(refs)
         if processes <= 1 or len(jobs) <= 1:
             out = []
-            for job in jobs:
+            for i, job in enumerate(jobs):
                 out.append(fn(**job))
+                _report(on_result, i, out[-1])
                 if bar is not None:
                     bar.update(1)
             return out
-        return _run_pool(fn, jobs, processes, bar, preload)
+        return _run_pool(fn, jobs, processes, bar, preload, on_result, meanwhile)
     finally:
         if bar is not None:
             bar.close()

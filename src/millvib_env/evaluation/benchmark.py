@@ -24,7 +24,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -36,7 +36,7 @@ from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
-from millvib_env.distributed import run_jobs
+from millvib_env.distributed import run_jobs, start_workers
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
@@ -44,7 +44,8 @@ from millvib_env.plant.model import rated_flow
 from millvib_env.tasks import Task, takes_task
 from millvib_env.threads import configured_threads
 from millvib_env.evaluation.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
-from millvib_env.evaluation.stats import METRICS, cvar, interval, iqm, normalized_score, paired_difference
+from millvib_env.evaluation.stats import (METRICS, cvar, interval, iqm, load_library, normalized_score,
+                                          paired_difference)
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES",
            "FULL_EPISODES", "cvar", "interval", "paired_difference"]
@@ -329,13 +330,16 @@ def _is_slow(name: str, seed: int | None) -> bool:
 
 
 def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
-                     progress: bool, processes: int = 1, label: str = "benchmark",
-                     scenarios: bool = False) -> tuple[dict[tuple, list[EpisodeRecord]], dict[str, dict]]:
+                     progress: bool, processes: int = 1, label: str = "benchmark", scenarios: bool = False,
+                     complete: Callable[[str, list], None] | None = None
+                     ) -> tuple[dict[tuple, list[EpisodeRecord]], dict[str, dict]]:
     """Every unit's (controller, agent seed) episode records on `plants` and, with `scenarios`, each controller's
     named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs
     (`_chunks`, and one per controller's scenarios) on Ray or in `processes` local worker processes: each episode
     depends only on its seeds, so the numbers are the same. The scenarios of the slow rows (agents, the MPC
-    bounds) are submitted first and the others last, so that no long job starts at the end."""
+    bounds) are submitted first and the others last, so that no long job starts at the end. Where the runs are
+    jobs, `complete(name, records)` is called in this process as soon as a controller's last episodes come in,
+    with the records `_records_of` gives it at the end, while the other jobs run."""
     records: dict[tuple, list[EpisodeRecord]] = {}
     firsts: dict[str, tuple] = {}
     for n, s in units if scenarios else []:
@@ -353,9 +357,27 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
             [j for j in named if not _is_slow(j["name"], j["agent_seed"])]
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
         agents = any(c.card is not None for c in loaded.values())
+        preload = ("torch", "stable_baselines3") if agents else ()
+        if ray is None:
+            start_workers(benchmark_job, preload)  # its imports run beside this process's own
+            load_library()  # the summaries' statistics (`complete`), imported while the workers start
+        left = {n: sum(j["kind"] == "episodes" and j["name"] == n for j in jobs) for n, _ in units}
+        arrived: dict[int, list] = {}
+
+        def on_result(i: int, part) -> None:
+            job = jobs[i]
+            if complete is None or job["kind"] != "episodes":
+                return
+            arrived[i] = part
+            left[job["name"]] -= 1
+            if left[job["name"]] == 0:  # the jobs in their order: as `_records_of` finds them below
+                complete(job["name"], [r for k, j in enumerate(jobs) if j["kind"] == "episodes"
+                                       and j["name"] == job["name"] for r in arrived.pop(k)])
+
         parts = run_jobs(benchmark_job, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"{label} ({'ray' if ray is not None else f'{processes} processes'})",
-                         preload=("torch", "stable_baselines3") if agents else ())
+                         preload=preload, on_result=on_result,  # a baseline's jobs may run here meanwhile
+                         meanwhile=[i for i, j in enumerate(jobs) if j["agent_seed"] is None])
         found = {}
         for job, part in zip(jobs, parts):
             if job["kind"] == "episodes":
@@ -368,6 +390,11 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
     return records, {n: _scenario_records(loaded[(n, s)], plants[0])
                      for n, s in tqdm(scenario_units, desc=f"{label}: scenarios", unit="controller",
                                       disable=not progress, leave=False)}
+
+
+def _records_of(records: Mapping[tuple, list[EpisodeRecord]], name: str) -> list[EpisodeRecord]:
+    """A controller's records, its units' (training seeds') in turn."""
+    return [r for (n, _), part in records.items() if n == name for r in part]
 
 
 def _scenario_records(ctrl, plant: int) -> dict[str, dict]:
@@ -439,16 +466,18 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     result["plants"] = plants
     start = time.time()
+    early = _Early(names, reference)
     records, result["scenarios"] = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label,
-                                                    scenarios=scenarios)
+                                                    scenarios=scenarios, complete=early)
     firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
     for name in names:
-        recs = [r for (n, _), part in records.items() if n == name for r in part]
-        result["controllers"][name] = {**summarize(recs), "env_id": firsts[name].env_id}
+        recs = _records_of(records, name)
+        result["controllers"][name] = {**(early.summaries[name] if name in early.summaries else summarize(recs)),
+                                       "env_id": firsts[name].env_id}
         result["records"][name] = recs
     if progress:
         print(f"{label}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
-    _compare(result)
+    _compare(result, early.comparisons)
     result["room"] = room(result)
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
@@ -561,32 +590,60 @@ def format_room(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _compare(result: dict) -> None:
-    """Paired comparisons on the same plants: per controller `paired` = {reference: ..., "pid-robust":
-    ...} (mean and CVaR-20 cost differences with their intervals, P(better)), `paired_vs_pid_robust`
-    (the same as paired["pid-robust"], kept for earlier readers) and the normalised score
-    (0 = pid-robust, 1 = pid-oracle)."""
-    recs_of = result["records"]
-    refs = [n for n in dict.fromkeys([result.get("reference"), "pid-robust"]) if n in recs_of]
-    for name, recs in recs_of.items():
-        summary = result["controllers"][name]
-        costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
-        summary["paired"] = {ref: paired_difference(costs, [r["cost"] for r in recs_of[ref]])
-                             for ref in refs if ref != name}
+def _comparisons(name: str, recs: list, recs_of: Mapping[str, list], reference: str | None) -> dict:
+    """`name`'s paired comparisons on the same plants (`_compare`), from the records of those it is compared with
+    (`recs_of`: at least the reference, pid-robust and pid-oracle, where they run)."""
+    out: dict[str, Any] = {}
+    refs = [n for n in dict.fromkeys([reference, "pid-robust"]) if n is not None and n in recs_of]
+    costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
+    out["paired"] = {ref: paired_difference(costs, [r["cost"] for r in recs_of[ref]]) for ref in refs if ref != name}
     ref = recs_of.get("pid-robust")
     oracle = recs_of.get("pid-oracle")
     if ref is None:
-        return
+        return out
     stable = {r["seed"] for r in ref if not r["diverged"]}
-    ref_cost = [r["cost"] for r in ref]
-    for name, recs in recs_of.items():
-        summary = result["controllers"][name]
-        summary["diverged_where_pid_robust_stable"] = int(sum(r["diverged"] and r["seed"] in stable for r in recs))
-        costs = [[r["cost"] for r in g] for g in _by_seed(recs)]
-        if name != "pid-robust":
-            summary["paired_vs_pid_robust"] = summary["paired"]["pid-robust"]
-        if oracle is not None:
-            summary["normalized_score"] = normalized_score(costs, ref_cost, [r["cost"] for r in oracle])
+    out["diverged_where_pid_robust_stable"] = int(sum(r["diverged"] and r["seed"] in stable for r in recs))
+    if name != "pid-robust":
+        out["paired_vs_pid_robust"] = out["paired"]["pid-robust"]
+    if oracle is not None:
+        out["normalized_score"] = normalized_score(costs, [r["cost"] for r in ref], [r["cost"] for r in oracle])
+    return out
+
+
+#: the controllers every other is compared with, where they run (`_comparisons`)
+COMPARED_WITH = ("pid-robust", "pid-oracle")
+
+
+def _compare(result: dict, done: Mapping[str, dict] | None = None) -> None:
+    """Paired comparisons on the same plants: per controller `paired` = {reference: ..., "pid-robust":
+    ...} (mean and CVaR-20 cost differences with their intervals, P(better)), `paired_vs_pid_robust`
+    (the same as paired["pid-robust"], kept for earlier readers) and the normalised score
+    (0 = pid-robust, 1 = pid-oracle). `done`: those already made, by controller (`_Early`)."""
+    for name, recs in result["records"].items():
+        result["controllers"][name].update(done[name] if done and name in done else
+                                           _comparisons(name, recs, result["records"], result.get("reference")))
+
+
+class _Early:
+    """A benchmark's summaries and paired comparisons made while its jobs run (`_collect_records`'s `complete`):
+    each controller's summary as soon as its last episodes come in, and its comparisons once those it is compared
+    with (`COMPARED_WITH` and the reference, where they run) have come in too. The same calls on the same records as
+    after the run, so the same numbers."""
+
+    def __init__(self, names: Sequence[str], reference: str):
+        self.reference = reference
+        self.needed = {reference, *COMPARED_WITH} & set(names)
+        self.records: dict[str, list] = {}
+        self.summaries: dict[str, dict] = {}
+        self.comparisons: dict[str, dict] = {}
+
+    def __call__(self, name: str, recs: list) -> None:
+        self.records[name] = recs
+        self.summaries[name] = summarize(recs)
+        if self.needed <= self.records.keys():
+            for n, r in self.records.items():
+                if n not in self.comparisons:
+                    self.comparisons[n] = _comparisons(n, r, self.records, self.reference)
 
 
 def _ci(s: dict, key: str, fmt: str = ".3g") -> str:

@@ -24,11 +24,17 @@ import numpy as np
 from millvib_env._checks import integer, real, shown
 
 __all__ = ["cvar", "iqm", "worst", "METRICS", "BOOTSTRAP", "BOOTSTRAP_SEED", "interval", "paired_difference",
-           "normalized_score"]
+           "normalized_score", "load_library"]
 
 #: bootstrap settings of every interval (scipy.stats.bootstrap)
 BOOTSTRAP = {"n_resamples": 2000, "confidence_level": 0.95}
 BOOTSTRAP_SEED = 12345
+
+
+def load_library() -> None:
+    """Import scipy.stats now (about 0.4 s: scipy builds its functions' docstrings at import), so that a caller
+    with time to spare (a benchmark whose worker processes are starting) does not pay it at its first interval."""
+    import scipy.stats  # noqa: F401
 
 
 def _values(values, axis: int) -> np.ndarray:
