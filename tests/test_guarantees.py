@@ -166,6 +166,21 @@ def test_a_worker_runs_in_the_callers_environment_and_folder_as_they_are_at_each
     assert os.getpid() not in {r[3] for r in first + second + third}
 
 
+def test_workers_share_the_cores_unless_the_user_set_the_threads(monkeypatch):
+    """A pool's workers run their plant batches on the usable cores over the workers (MILLVIB_NUM_THREADS, as
+    joblib's workers limit theirs), and on the user's setting where there is one."""
+    from millvib_env.distributed import run_jobs
+    from millvib_env.threads import THREADS_ENV, usable_cores
+    from tests._jobs import what_a_worker_sees
+
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    shared = run_jobs(what_a_worker_sees, [{"name": THREADS_ENV}] * 2, processes=2)
+    assert [r[0] for r in shared] == [str(max(1, usable_cores() // 2))] * 2
+    monkeypatch.setenv(THREADS_ENV, "3")
+    assert [r[0] for r in run_jobs(what_a_worker_sees, [{"name": THREADS_ENV}] * 2, processes=2)] == ["3"] * 2
+    assert THREADS_ENV not in os.environ or os.environ[THREADS_ENV] == "3"
+
+
 @pytest.mark.parametrize("json_at", ["inside", "same"])
 def test_another_output_of_the_run_inside_the_result_folder_is_refused(tmp_path, capsys, json_at):
     out = tmp_path / "D"

@@ -23,6 +23,8 @@ import signal
 import threading
 from typing import Any, Callable, Iterator, Sequence
 
+from millvib_env.threads import THREADS_ENV, usable_cores
+
 __all__ = ["run_jobs", "ray_available", "expect_modules", "start_workers"]
 
 
@@ -71,6 +73,17 @@ def _init_ray(address: str):
 
 def _call(fn: Callable, kwargs: dict) -> Any:
     return fn(**kwargs)
+
+
+def _worker_environ(n_workers: int) -> dict[str, str]:
+    """The environment a pool's workers run in: this process's, with MILLVIB_NUM_THREADS set to the usable cores
+    over the workers where the user has not set it, so that `n_workers` workers of threaded plant batches do not
+    each start a thread per core (as joblib's process workers limit their threads). The numbers do not depend
+    on the threads (`threads`)."""
+    environ = dict(os.environ)
+    if not environ.get(THREADS_ENV, "").strip():
+        environ[THREADS_ENV] = str(max(1, usable_cores() // max(1, n_workers)))
+    return environ
 
 
 def _start_worker(environ: dict[str, str]) -> None:
@@ -242,7 +255,7 @@ def _run_pool(fn: Callable, jobs: list, processes: int, bar, preload: Sequence[s
     futures: dict[int, cf.Future] = {}
     try:
         pool = cf.ProcessPoolExecutor(max_workers=n_workers, initializer=_start_worker,
-                                      initargs=(dict(os.environ),), mp_context=ctx)
+                                      initargs=(_worker_environ(n_workers),), mp_context=ctx)
         if forked and meanwhile:
             _submit_meanwhile(pool, fn, jobs, n_workers, meanwhile, here, futures, on_result, bar)
         else:

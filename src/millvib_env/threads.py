@@ -24,9 +24,9 @@ import os
 
 from millvib_env._checks import shown
 
-__all__ = ["MIN_PARALLEL", "use_threads", "numba_threads", "configured_threads", "set_num_threads", "serial_unless_set",
-           "THREADS_ENV", "passive_waiting", "one_blas_thread",
-           "one_xla_thread", "XLA_ONE_THREAD", "one_torch_thread"]
+__all__ = ["MIN_PARALLEL", "usable_cores", "use_threads", "numba_threads", "configured_threads", "set_num_threads",
+           "serial_unless_set", "THREADS_ENV", "passive_waiting", "one_blas_thread", "one_xla_thread", "XLA_ONE_THREAD",
+           "one_torch_thread"]
 
 THREADS_ENV = "MILLVIB_NUM_THREADS"
 #: batches smaller than this run serially
@@ -87,6 +87,14 @@ class one_blas_thread:
 
     def __exit__(self, *exc) -> None:
         self._ctx.restore_original_limits()
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the platform says, else every core)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
 
 
 def configured_threads() -> int | None:

@@ -20,7 +20,6 @@ import csv
 import io
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -42,7 +41,7 @@ from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS, EnvConfig
 from millvib_env.envs.scenarios import get_scenario, list_scenarios
 from millvib_env.plant.model import rated_flow
 from millvib_env.tasks import Task, takes_task
-from millvib_env.threads import configured_threads
+from millvib_env.threads import configured_threads, usable_cores
 from millvib_env.evaluation.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.evaluation.stats import (METRICS, cvar, interval, iqm, load_library, normalized_score,
                                           paired_difference)
@@ -250,14 +249,6 @@ SLOW_BASELINES = ("mpc-oracle", "mpc-preview")
 AUTO_JOBS_MAX = 4
 #: --jobs auto's fewest plants for worker processes: below it, starting them costs more than they save
 AUTO_MIN_PLANTS = 20
-
-
-def usable_cores() -> int:
-    """The cores this process may run on (its affinity where the platform says, else every core)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # macOS, Windows
-        return os.cpu_count() or 1
 
 
 def auto_jobs(units: Sequence[tuple[str, int | None]], n_plants: int) -> int:
