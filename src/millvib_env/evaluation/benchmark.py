@@ -320,6 +320,12 @@ def _is_slow(name: str, seed: int | None) -> bool:
     return seed is not None or name in SLOW_BASELINES
 
 
+def _split_slow(jobs: list[dict]) -> tuple[list[dict], list[dict]]:
+    """The jobs of slow rows (`_is_slow`) and the others, each in their order."""
+    slow = [_is_slow(j["name"], j["agent_seed"]) for j in jobs]
+    return [j for j, s in zip(jobs, slow) if s], [j for j, s in zip(jobs, slow) if not s]
+
+
 def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
                      progress: bool, processes: int = 1, label: str = "benchmark", scenarios: bool = False,
                      complete: Callable[[str, list], None] | None = None
@@ -327,10 +333,11 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
     """Every unit's (controller, agent seed) episode records on `plants` and, with `scenarios`, each controller's
     named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs
     (`_chunks`, and one per controller's scenarios) on Ray or in `processes` local worker processes: each episode
-    depends only on its seeds, so the numbers are the same. The scenarios of the slow rows (agents, the MPC
-    bounds) are submitted first and the others last, so that no long job starts at the end. Where the runs are
-    jobs, `complete(name, records)` is called in this process as soon as a controller's last episodes come in,
-    with the records `_records_of` gives it at the end, while the other jobs run."""
+    depends only on its seeds, so the numbers are the same. The slow rows' jobs (agents, the MPC bounds: episodes
+    and scenarios) are submitted first, so that no long job starts at the end, and the short ones after them
+    (episodes, then scenarios), the last of which this process may run itself while the workers start. Where the
+    runs are jobs, `complete(name, records)` is called in this process as soon as a controller's last episodes come
+    in, with the records `_records_of` gives it at the end, while the other jobs run."""
     records: dict[tuple, list[EpisodeRecord]] = {}
     firsts: dict[str, tuple] = {}
     for n, s in units if scenarios else []:
@@ -344,8 +351,8 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
                     for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
         named = [{"kind": "scenarios", "name": n, "task": task_of[n], "plant": plants[0], "env_id": env_id,
                   "agent_seed": s} for n, s in scenario_units]
-        jobs = [j for j in named if _is_slow(j["name"], j["agent_seed"])] + episodes + \
-            [j for j in named if not _is_slow(j["name"], j["agent_seed"])]
+        (slow_named, named), (slow_episodes, episodes) = _split_slow(named), _split_slow(episodes)
+        jobs = slow_named + slow_episodes + episodes + named
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
         agents = any(c.card is not None for c in loaded.values())
         preload = ("torch", "stable_baselines3") if agents else ()
@@ -367,8 +374,8 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
 
         parts = run_jobs(benchmark_job, jobs, ray=ray, processes=processes, progress=progress,
                          desc=f"{label} ({'ray' if ray is not None else f'{processes} processes'})",
-                         preload=preload, on_result=on_result,  # a baseline's jobs may run here meanwhile
-                         meanwhile=[i for i, j in enumerate(jobs) if j["agent_seed"] is None])
+                         preload=preload, on_result=on_result,  # the short jobs may run here meanwhile
+                         meanwhile=[i for i, j in enumerate(jobs) if not _is_slow(j["name"], j["agent_seed"])])
         found = {}
         for job, part in zip(jobs, parts):
             if job["kind"] == "episodes":
