@@ -39,7 +39,7 @@ def full_block(md: str) -> list[str]:
         block += ["", lines[spread[0]], ""] + _table(lines, spread[0] + 2)
     note = [x for x in lines if x.startswith("On this task pid-oracle")][:1]
     block += ["", *note] if note else []
-    room = [i for i, x in enumerate(lines) if x.startswith("The room to learn")]
+    room = [i for i, x in enumerate(lines) if x.startswith("The room to learn") or x.startswith("Same information")]
     if room:
         end = next(i for i, x in enumerate(lines) if x.startswith("Vibration detail"))
         block += [""] + [x for x in lines[room[0]:end]]
@@ -53,25 +53,35 @@ def _pct(d: dict | None, key: str, ci: str) -> str:
 
 
 def headline_block(data: dict) -> list[str]:
+    """The README's table of a task: each controller's information set, its cost, against the reference and
+    against the classical controller of its own information (cost and severity, paired), then each set's
+    classical controller, bound and room."""
     ref = data["reference"]
-    lines = [f"| controller | seeds | cost mean | cost CVaR-20 | vs {ref}: mean | vs {ref}: CVaR-20 | "
-             "vs pid-robust: mean |", "|---|---|---|---|---|---|---|"]
+    lines = [f"| controller | information | cost mean | cost CVaR-20 | vs {ref}: mean | vs its classical: mean | "
+             "CVaR-20 | severity |", "|---|---|---|---|---|---|---|---|"]
     for name, s in data["controllers"].items():
         paired = s.get("paired", {})
         mean = f"{s['cost_mean']:.3g} [{s['cost_mean_ci'][0]:.3g}, {s['cost_mean_ci'][1]:.3g}]"
         cvar = f"{s['cost_cvar20']:.3g} [{s['cost_cvar20_ci'][0]:.3g}, {s['cost_cvar20_ci'][1]:.3g}]"
         shown = f"**{name}**" if name == ref else name
-        lines.append(f"| {shown} | {s['n_seeds']} | {mean} | {cvar} | {_pct(paired.get(ref), 'cost_diff_rel', 'ci')} | "
-                     f"{_pct(paired.get(ref), 'cvar20_diff_rel', 'cvar20_ci')} | "
-                     f"{_pct(paired.get('pid-robust'), 'cost_diff_rel', 'ci')} |")
-    room = data.get("room")
-    if room:
-        lines += ["", "| bound | room, mean | room, CVaR-20 |", "|---|---|---|"]
-        pct = lambda v: f"{100 * v:+.1f} %"  # noqa: E731
-        for name, b in room["bounds"].items():
-            lines.append(f"| {name} | {pct(b['room_mean'])} [{pct(b['room_mean_ci'][0])}, {pct(b['room_mean_ci'][1])}]"
-                         f" | {pct(b['room_cvar20'])} [{pct(b['room_cvar20_ci'][0])}, "
-                         f"{pct(b['room_cvar20_ci'][1])}] |")
+        same = s.get("same_information")
+        against = (f"{_pct(same['cost'], 'cost_diff_rel', 'ci')} ({same['classical']})",
+                   _pct(same["cost"], "cvar20_diff_rel", "cvar20_ci"),
+                   _pct(same["severity"], "cost_diff_rel", "ci") + (" (tracking flag)" if same["tracking_flag"]
+                                                                    else "")) if same else ("-", "-", "-")
+        lines.append(f"| {shown} | {s.get('information', '-')} | {mean} | {cvar} | "
+                     f"{_pct(paired.get(ref), 'cost_diff_rel', 'ci')} | {' | '.join(against)} |")
+    info = data.get("information")
+    if info:
+        lines += ["", "| information | its classical | its bound | room, mean | room, CVaR-20 | bound holds |",
+                  "|---|---|---|---|---|---|"]
+        for target, e in info.items():
+            room = ((_pct(e, "room_mean", "room_mean_ci"), _pct(e, "room_cvar20", "room_cvar20_ci"))
+                    if "room_mean" in e else ("-", "-"))
+            holds = "-" if "bound_holds" not in e else ("yes" if e["bound_holds"] else
+                                                           "**no**: " + ", ".join(e["beaten_by"]))
+            lines.append(f"| {target} | {e['classical'] or '-'} | {e['bound'] or '-'} | {room[0]} | {room[1]} | "
+                         f"{holds} |")
     return lines
 
 

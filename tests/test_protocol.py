@@ -112,7 +112,12 @@ def test_the_json_schema_and_the_comparisons(tmp_path):
         others = {"pid-pf-robust", "pid-robust"} - {name}
         assert set(s["paired"]) == others, name
         assert all(set(d) == keys for d in s["paired"].values())
+    # every row carries what it reads, and each set its classical controller and bound
+    assert {s["information"] for s in data["controllers"].values()} == {"loop", "loop+params"}
+    assert data["information"]["loop"]["classical"] in ("pid-robust", "pid-paper", "pid-pf-robust")
+    assert data["information"]["loop"]["bound"] == "pid-oracle" and data["preview"] == "measured"
     paper = data["controllers"]["pid-paper"]
+    assert paper["same_information"]["classical"] == data["information"]["loop"]["classical"]
     assert paper["paired"]["pid-robust"] == paper["paired_vs_pid_robust"]
     assert paper["paired"]["pid-pf-robust"]["cost_diff_rel"] > 0  # the paper's PID is the dearer
 

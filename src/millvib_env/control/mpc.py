@@ -25,8 +25,9 @@ What each knows:
 
 * `mpc-oracle`: the plant's parameters and its full state (no sensor noise) at every sample, and the
   disturbances' values now, held over the horizon;
-* `mpc-preview`: the same, and the disturbances' and the set-point's true course over the horizon (what an
-  entry-thickness gauge upstream of the stand and the pass schedule would give, made exact).
+* `mpc-preview`: the same, and the disturbances' and the set-point's true course over its preview (what an
+  entry-thickness gauge upstream of the stand and the pass schedule would give, made exact, with the pump's
+  ripple too): `preview_samples` ahead (the students' 20 ms), held from there to the end of a longer horizon.
 
 The weights and the horizon are tuned per task on its tuning plants (configs/control/v1/<task>.yaml).
 """
@@ -75,6 +76,9 @@ class MPCSettings:
     du_v: float = 1.0
     residual_filter: float = 0.2
     preview: bool = False
+    #: with a preview, how far it reaches (loop samples; the course is held from there to the horizon's end); 0:
+    #: the whole horizon
+    preview_samples: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) \
@@ -88,6 +92,10 @@ class MPCSettings:
         real("MPCSettings.residual_filter", self.residual_filter, lo=0.0, hi=1.0)
         if not isinstance(self.preview, (bool, np.bool_)):
             raise ValueError(f"MPCSettings.preview = {shown(self.preview)} is invalid: True or False")
+        if isinstance(self.preview_samples, bool) or not isinstance(self.preview_samples, (int, np.integer)) \
+                or not 0 <= self.preview_samples <= 400:
+            raise ValueError(f"MPCSettings.preview_samples = {shown(self.preview_samples)} is invalid: an integer in "
+                             "[0, 400] (loop samples; 0: the whole horizon)")
 
 
 @dataclass
@@ -313,7 +321,10 @@ class MPCPolicy(Controller):
         if self.settings.preview:
             steps = self._steps.get(N)
             if steps is None or steps[2] != dt:
-                steps = self._steps[N] = (np.arange(N + 1), (np.arange(N + 1) + 0.5) * dt, dt)
+                ahead = np.arange(N + 1)
+                if self.settings.preview_samples:  # the course known so far, held beyond
+                    ahead = np.minimum(ahead, self.settings.preview_samples)
+                steps = self._steps[N] = (ahead, (ahead + 0.5) * dt, dt)
             idx = np.minimum(k + steps[0], last)
             tm = t + steps[1]  # the sinusoids at each hold's midpoint
         else:

@@ -9,6 +9,7 @@ entry in configs/control/[v1/]<task>.yaml (docs/maintainers.md).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -18,6 +19,7 @@ from millvib_env.control.base import Controller
 from millvib_env.control.lqr import LQRWeights
 from millvib_env.control.mpc import MPCPolicy, MPCSettings
 from millvib_env.control.policies import FixedGainPolicy, LQRPolicy, OraclePolicy
+from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward
 from millvib_env.control.tuned import control_config_path, control_entry, entry_gains, oracle_table
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
@@ -52,12 +54,14 @@ class Baseline:
     #: it knows the disturbances' and the set-point's course ahead (a preview): the benchmark's room to learn
     #: keeps it apart from the bounds that know the present only
     previews: bool = False
+    #: what it reads (`control.information`: atoms joined by "+")
+    information: str = "loop"
 
     @classmethod
-    def fixed(cls, description: str, gains: GainsFn | None = None) -> Baseline:
+    def fixed(cls, description: str, gains: GainsFn | None = None, information: str = "loop") -> Baseline:
         """A fixed-gain baseline: its gains from `gains`, by default its entry in the task's control config
         (`tuned_gains`)."""
-        return cls(description, fixed_gains, gains=gains or tuned_gains)
+        return cls(description, fixed_gains, gains=gains or tuned_gains, information=information)
 
     @property
     def named_gains(self) -> bool:
@@ -102,6 +106,20 @@ def adaptive(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: Gain
                           cfg.base_params, sample_rate_hz=cfg.sample_rate_hz)
 
 
+def preview_ff(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
+    """`pid-pf-preview` (`control.preview`): its 17 gains from its entry, on the task's pid-pf-robust."""
+    if version == "v0":
+        raise ValueError(f"{name} runs on the loop as commissioned: use environment version v1, not v0")
+    entry = control_entry(task, name, version)
+    gains = entry.get("gains") if isinstance(entry, dict) else None
+    if not isinstance(gains, list) or len(gains) != len(FF_CHANNELS) or not all(
+            isinstance(g, (int, float)) and not isinstance(g, bool) and math.isfinite(g) for g in gains):
+        raise ValueError(f"{control_config_path(task, version)} {name}.gains = {shown(gains)} is invalid: "
+                         f"{len(FF_CHANNELS)} finite numbers ({', '.join(FF_CHANNELS)})")
+    base, _ = tuned_gains(REFERENCE, task, version)
+    return PreviewFeedforward(name, gains, base, entry.get("how", ""))
+
+
 def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) -> Controller:
     """`mpc-oracle` / `mpc-preview` with the task's settings (`control.mpc`); a preview where its entry says so
     (`Baseline.previews`)."""
@@ -128,26 +146,32 @@ REGISTRY: dict[str, Baseline] = {
                                   "commissioned"),
     "pid-robust": Baseline.fixed("one set of gains minimising the mean cost over the task's tuning plants"),
     "pid-oracle": Baseline("knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not "
-                           "deployable", gain_oracle),
+                           "deployable", gain_oracle, information="loop+params"),
     "pid-adaptive": Baseline("estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the "
                              "estimate", adaptive),
     "lqr-oracle": Baseline("knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
-                           "linearised plant; not deployable", lqr_oracle),
+                           "linearised plant; not deployable", lqr_oracle, information="loop+params"),
     "pid-pf-robust": Baseline.fixed("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range "
                                     "of c1 and Ct: the active damping a plant engineer commissions; the benchmark's "
                                     "reference"),
     "pid-pf-ff": Baseline.fixed("pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), "
                                 "all five gains tuned together: the classical opponent of a controller that reads "
-                                "the load cells"),
+                                "the load cells", information="loop+force"),
     "pid-pf-oracle": Baseline("knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
                               "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
-                              gain_oracle),
+                              gain_oracle, information="loop+params"),
+    "pid-pf-preview": Baseline("pid-pf-robust plus a linear feedforward of what the preview students read (the pass "
+                               "schedule's and the entry gauge's force preview over 0.5-20 ms, the load cells): a "
+                               "two-degree-of-freedom PID with a feedforward AGC, 17 gains tuned on the tuning plants "
+                               "with the measured preview (control.preview); v1 only", preview_ff, loop_only=True,
+                               env_mode="valve", information="loop+force+schedule+gauge"),
     "mpc-oracle": Baseline("knows the plant, its state and the disturbances now; model-predictive control of the "
                            "valve at the loop's rate within +-u_max (control.mpc): the bound for a controller of any "
-                           "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve"),
+                           "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve",
+                           information="loop+force+pump+params+state"),
     "mpc-preview": Baseline("mpc-oracle that also knows the disturbances' and the set-point's course over its horizon "
                             "(an entry gauge's preview, made exact); not deployable; v1 only", mpc, loop_only=True,
-                            env_mode="valve", previews=True),
+                            env_mode="valve", previews=True, information="loop+force+schedule+gauge+pump+params+state"),
 }
 #: every baseline by name, with what it is
 BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()}

@@ -19,6 +19,7 @@ from millvib_env._checks import as_float, shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.disturbances import DisturbanceSettings
+from millvib_env.envs.gauge import gauge_settings
 from millvib_env.loop.settings import LoopSettings
 from millvib_env.params import PARAM_FIELDS, MillParams, load_preset
 
@@ -118,9 +119,13 @@ class ObservationSettings:
     #: sample it takes at the period's end, which it reads together with the agent's next action (as one
     #: program on the mill's controller would); v0 observes the period's end whichever is set
     loop_sample: str = "previous"
+    #: the preview's force channels as a mill measures them (`envs.gauge`): None (``exact``, the default) or a
+    #: gauge's errors (``measured`` or a mapping of `envs.gauge.GaugeSettings` fields)
+    preview_gauge: Any = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "preview_samples", tuple(int(k) for k in self.preview_samples))
+        object.__setattr__(self, "preview_gauge", gauge_settings(self.preview_gauge))
         object.__setattr__(self, "history_samples", tuple(int(k) for k in self.history_samples))
 
 
@@ -378,6 +383,15 @@ def _history(path: str, value: Any) -> list:
     return _increasing(path, value, MAX_HISTORY_SAMPLES, 16)
 
 
+def _gauge(path: str, value: Any) -> Any:
+    """``observation.preview_gauge``: 'exact', 'measured' or a mapping of `envs.gauge.GaugeSettings` fields."""
+    try:
+        gauge_settings(value)
+    except ValueError as err:
+        raise ValueError(f"env config {err}") from None
+    return value
+
+
 def _bool(path: str, value: Any) -> bool:
     if not isinstance(value, bool):
         _fail(path, value, "must be true or false")
@@ -562,7 +576,8 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
     "observation": lambda p, v: _section(p, v, {"phase": _bool, "params": _bool, "force": _bool,
                                                 "preview_samples": _preview, "history_samples": _history,
                                                 "loop_sample": lambda pp, vv: vv in LOOP_SAMPLES or _fail(
-                                                    pp, vv, f"one of {list(LOOP_SAMPLES)}")}),
+                                                    pp, vv, f"one of {list(LOOP_SAMPLES)}"),
+                                                "preview_gauge": _gauge}),
 }
 
 _TOP_KEYS = {"plant", "episode_s", "control_dt_s", "decision_dt_s", "sample_rate_hz", "randomize",

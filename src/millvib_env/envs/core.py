@@ -27,6 +27,7 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, user_disturbances
 from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
+from millvib_env.envs.gauge import gauge_force
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
 from millvib_env.envs.reward import Reward
@@ -136,6 +137,9 @@ class MillVibCore:
         self.ATOL = np.zeros((n, NY))
         self.XD = np.zeros((n, self.n_ctrl + self.n_sub))
         self.DFL = np.zeros((n, self.n_ctrl + self.n_sub))
+        #: the measured preview (`envs.gauge`): its settings, and the force course each episode's gauge predicts
+        self.gauge = seen.preview_gauge if seen.preview_samples else None
+        self.GF = np.zeros((n, self.n_ctrl + self.n_sub)) if self.gauge is not None else None
         self.k = np.zeros(n, dtype=np.int64)
         self.sq_err_sum = np.zeros(n)
         self.acc_trace = np.zeros((n, n_trace))  # + the sample at t = 0
@@ -222,6 +226,10 @@ class MillVibCore:
         self.XD[i, self.n_ctrl:] = profile.xd[-1]
         self.DFL[i, :self.n_ctrl] = profile.dFL
         self.DFL[i, self.n_ctrl:] = profile.dFL[-1]
+        if self.GF is not None and self.gauge is not None:
+            gf = gauge_force(profile.dFL, np.random.default_rng(ep.gauge_seed), self.cfg.control_dt_s, self.gauge)
+            self.GF[i, :self.n_ctrl] = gf
+            self.GF[i, self.n_ctrl:] = gf[-1]
         if self.mode == "gain":
             # the paper's PID (KPL, KFF at their lowest bounds), or the base gains of a relative action
             self.gains[i] = self.gain_map.start_gains(PAPER_GAINS.to_array())
@@ -419,7 +427,8 @@ class MillVibCore:
     def preview(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The preview of environments `idx` (`ObservationSettings.preview_samples`): the rolling force's change
         (N: force steps and eccentricity) and the set-point's (m) from the hold that starts now to the one that
-        starts k control samples ahead, for each look-ahead k; beyond the episode's end the last values hold."""
+        starts k control samples ahead, for each look-ahead k; beyond the episode's end the last values hold. The
+        force is the plant's own (exact) or, where the preview is measured, the gauge's (`envs.gauge`)."""
         ks = np.asarray(self.observer.preview_samples)
         now = self.k[idx] * self.n_sub
         last = self.DFL.shape[1] - 1
@@ -427,8 +436,12 @@ class MillVibCore:
         rows = np.asarray(idx)[:, None]
         dt = self.cfg.control_dt_s
         t_now = self.T[idx]
-        force_now = self.DFL[idx, np.minimum(now, last)] + self._eccentricity(idx, t_now)
-        force_then = self.DFL[rows, cols] + self._eccentricity(rows, t_now[:, None] + ks[None, :] * dt)
+        forces = self.DFL if self.GF is None else self.GF
+        force_now = forces[idx, np.minimum(now, last)]
+        force_then = forces[rows, cols]
+        if self.gauge is None or self.gauge.eccentricity:
+            force_now = force_now + self._eccentricity(idx, t_now)
+            force_then = force_then + self._eccentricity(rows, t_now[:, None] + ks[None, :] * dt)
         xd_now = self.XD[idx, np.minimum(now, last)]
         return force_then - force_now[:, None], self.XD[rows, cols] - xd_now[:, None]
 

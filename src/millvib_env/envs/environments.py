@@ -324,8 +324,12 @@ class ValveEnv(MillVibEnv):
     pump phase, true parameters and the load cells' force as in `GainScheduleEnv`. Optional preview
     (``observation.preview_samples``, a list of look-aheads k in control samples): per k, the rolling
     force's change (signed-log, as the force channel) and the set-point's change (signed-log, as the
-    error) from the hold that starts now to the one k samples ahead, from the episode's own course:
-    what an entry-thickness gauge upstream of the stand and the pass schedule tell a controller.
+    error) from the hold that starts now to the one k samples ahead: what an entry-thickness gauge
+    upstream of the stand and the pass schedule tell a controller. By default the force's is the
+    episode's own course, exact (eccentricity included); ``observation.preview_gauge: measured``
+    gives it as a gauge measures it (`envs.gauge`: a timing error from the strip speed's error,
+    1 ms RMS; a 10 % force-model error per change; 10 kN RMS of noise; no eccentricity; a mapping
+    sets each), from the episode's own gauge stream. The set-point's course is exact either way.
     Optional history (``observation.history_samples``, a list of lags k in agent steps): per k, the
     measured channels (error, velocity, acceleration, pressure, last action, PID command, load force,
     those present) as they were k steps ago, appended last (names ``<channel>_lag_<k>``; an episode's

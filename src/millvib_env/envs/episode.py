@@ -1,8 +1,9 @@
 """The draw of one episode: its plant, start and disturbances, from one episode seed.
 
-Each episode seed spawns four children of a `SeedSequence`: the plant (randomised parameters and
-the start's jitter), the disturbances, the observation's sensor noise and the sampled loop's sensors
-(v1; the first three are the same children whatever the count). A scenario or pinned parameters
+Each episode seed spawns five children of a `SeedSequence`: the plant (randomised parameters and
+the start's jitter), the disturbances, the observation's sensor noise, the sampled loop's sensors
+(v1) and the measured preview's gauge (`envs.gauge`; the first ones are the same children whatever the
+count). A scenario or pinned parameters
 replace draws but never skip them, so the other streams stay the same.
 """
 
@@ -35,6 +36,8 @@ class Episode:
     scenario: str | None
     noise_rng: np.random.Generator
     loop_rng: np.random.Generator
+    #: the measured preview's stream (`envs.gauge`), a generator made only where the preview is measured
+    gauge_seed: np.random.SeedSequence
 
 
 def check_reset_options(options: Mapping | None, config: EnvConfig) -> dict:
@@ -78,7 +81,7 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     """Draw the episode of `episode_seed` (options already checked by `check_reset_options`). The first
     `n_builtin` of `disturbances` are the config's (default: all), the rest a user's (`extra_disturbances`)."""
     n_builtin = len(disturbances) if n_builtin is None else n_builtin
-    plant_ss, dist_ss, noise_ss, loop_ss = np.random.SeedSequence(episode_seed).spawn(4)
+    plant_ss, dist_ss, noise_ss, loop_ss, gauge_ss = np.random.SeedSequence(episode_seed).spawn(5)
     plant_rng, dist_rng = np.random.default_rng(plant_ss), np.random.default_rng(dist_ss)
     initial = config.initial
     pinned: dict[str, float] = {}
@@ -117,4 +120,4 @@ def draw_episode(config: EnvConfig, disturbances: list, episode_seed: int, n_ctr
     else:
         y0 = initial_state(params, x0=x0)
     return Episode(params, profile, y0, x0, scenario, np.random.default_rng(noise_ss),
-                   np.random.default_rng(loop_ss))
+                   np.random.default_rng(loop_ss), gauge_ss)

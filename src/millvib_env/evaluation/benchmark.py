@@ -34,6 +34,7 @@ from millvib_env._paths import atomic_folder, check_output, check_result_folder,
 from millvib_env.control.agents import agent_seeds, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
+from millvib_env.control.information import from_env_kwargs
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.distributed import run_jobs, start_workers
 from millvib_env.envs.batch import env_id_for, env_version
@@ -45,11 +46,17 @@ from millvib_env.threads import configured_threads, usable_cores
 from millvib_env.evaluation.evaluate import COST_SCALES, CSV_FIELDS, EpisodeRecord, run_episodes, trace_episode
 from millvib_env.evaluation.stats import (METRICS, cvar, interval, iqm, load_library, normalized_score,
                                           paired_difference)
+from millvib_env.evaluation.verdict import format_information, information_verdict
 
 __all__ = ["run_benchmark", "summarize", "format_table", "benchmark_from_cli", "DEFAULT_EPISODES",
            "FULL_EPISODES", "cvar", "interval", "paired_difference"]
 
 #: held-out plants per controller: the quick run (one seed per agent) and the full protocol (--all-seeds)
+#: how a benchmark gives a preview to the controllers that read one (`envs.gauge`), and its default
+PREVIEW_GAUGES = ("measured", "exact")
+DEFAULT_PREVIEW_GAUGE = "measured"
+
+
 DEFAULT_EPISODES = 40
 FULL_EPISODES = 200
 
@@ -239,7 +246,8 @@ def _expand_groups(names: Sequence[str], version: str) -> list[str]:
     """Controller names with the groups 'classical' (`DEPLOYABLE_CLASSICAL`) and 'bounds' (the `ROOM_BOUNDS` that
     the version has) in place, each name once."""
     have = set(baseline_names(version))
-    groups = {"classical": list(DEPLOYABLE_CLASSICAL), "bounds": [n for n in ROOM_BOUNDS if n in have]}
+    groups = {"classical": [n for n in DEPLOYABLE_CLASSICAL if n in have],
+              "bounds": [n for n in ROOM_BOUNDS if n in have]}
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
@@ -304,10 +312,11 @@ def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[
 
 
 def scenario_records(name: str, task: Task, plant: int, env_id: str = "MillVib-GainSchedule-v0",
-                     agent_seed: int | None = None) -> dict[str, dict]:
+                     agent_seed: int | None = None, env_kwargs: dict | None = None) -> dict[str, dict]:
     """`_scenario_records` of one controller by name (a job of a distributed benchmark: the Task crosses to the
     worker as it is); an agent on its training seed `agent_seed`, a baseline in `env_id`'s version."""
-    return _scenario_records(load_controller(name, task, seed=agent_seed, version=env_version(env_id)), plant)
+    return _scenario_records(load_controller(name, task, seed=agent_seed, version=env_version(env_id)), plant,
+                             env_kwargs)
 
 
 def benchmark_job(kind: str, **job):
@@ -328,7 +337,7 @@ def _split_slow(jobs: list[dict]) -> tuple[list[dict], list[dict]]:
 
 def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
                      progress: bool, processes: int = 1, label: str = "benchmark", scenarios: bool = False,
-                     complete: Callable[[str, list], None] | None = None
+                     complete: Callable[[str, list], None] | None = None, env_kwargs: Mapping[str, dict] | None = None
                      ) -> tuple[dict[tuple, list[EpisodeRecord]], dict[str, dict]]:
     """Every unit's (controller, agent seed) episode records on `plants` and, with `scenarios`, each controller's
     named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs
@@ -337,7 +346,9 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
     and scenarios) are submitted first, so that no long job starts at the end, and the short ones after them
     (episodes, then scenarios), the last of which this process may run itself while the workers start. Where the
     runs are jobs, `complete(name, records)` is called in this process as soon as a controller's last episodes come
-    in, with the records `_records_of` gives it at the end, while the other jobs run."""
+    in, with the records `_records_of` gives it at the end, while the other jobs run. `env_kwargs`: a controller's
+    environment keywords beyond its own, by name (the benchmark's preview setting, `_preview_kwargs`)."""
+    kw_of = dict(env_kwargs or {})
     records: dict[tuple, list[EpisodeRecord]] = {}
     firsts: dict[str, tuple] = {}
     for n, s in units if scenarios else []:
@@ -347,10 +358,10 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
     if ray is not None or processes > 1:
         task_of = {n: c.task for (n, _), c in loaded.items()}  # each controller's, bound where it was loaded
         episodes = [{"kind": "episodes", "name": n, "task": task_of[n], "seeds": chunk, "env_id": env_id,
-                     "agent_seed": s}
+                     "agent_seed": s, "env_kwargs": kw_of.get(n)}
                     for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
         named = [{"kind": "scenarios", "name": n, "task": task_of[n], "plant": plants[0], "env_id": env_id,
-                  "agent_seed": s} for n, s in scenario_units]
+                  "agent_seed": s, "env_kwargs": kw_of.get(n)} for n, s in scenario_units]
         (slow_named, named), (slow_episodes, episodes) = _split_slow(named), _split_slow(episodes)
         jobs = slow_named + slow_episodes + episodes + named
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)
@@ -384,8 +395,8 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
                 found[job["name"]] = part
         return records, {n: found[n] for n, _ in scenario_units}
     for unit in tqdm(units, desc=label, unit="run", disable=not progress):
-        records[unit] = _run(loaded[unit], plants)
-    return records, {n: _scenario_records(loaded[(n, s)], plants[0])
+        records[unit] = _run(loaded[unit], plants, kw_of.get(unit[0]))
+    return records, {n: _scenario_records(loaded[(n, s)], plants[0], kw_of.get(n))
                      for n, s in tqdm(scenario_units, desc=f"{label}: scenarios", unit="controller",
                                       disable=not progress, leave=False)}
 
@@ -395,15 +406,15 @@ def _records_of(records: Mapping[tuple, list[EpisodeRecord]], name: str) -> list
     return [r for (n, _), part in records.items() if n == name for r in part]
 
 
-def _scenario_records(ctrl, plant: int) -> dict[str, dict]:
+def _scenario_records(ctrl, plant: int, env_kwargs: dict | None = None) -> dict[str, dict]:
     """One episode of `ctrl` per named scenario with distinct plants: severity, tracking, zone, divergence, cost.
     A controller whose environments do not touch each other (`Controller.batch_exact`: the baselines) runs them
     as one batch, with the numbers of one at a time; any other one at a time."""
     names = list(distinct_plant_scenarios())
     if ctrl.batch_exact:
-        recs = _run(ctrl, [plant] * len(names), scenario=names)
+        recs = _run(ctrl, [plant] * len(names), env_kwargs, scenario=names)
     else:
-        recs = [_run(ctrl, [plant], scenario=sc)[0] for sc in names]
+        recs = [_run(ctrl, [plant], env_kwargs, scenario=sc)[0] for sc in names]
     return {sc: {k: rec[k] for k in ("severity_mm_s", "tracking_rms_um", "iso_zone", "diverged", "cost")}
             for sc, rec in zip(names, recs)}
 
@@ -420,7 +431,8 @@ def _header(task: Task, version: str, reference: str, seed: int, episodes: int, 
 def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task: str | Task = "startup",
                   episodes: int | None = None, seed: int = 0, env_version: str = DEFAULT_VERSION,
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
-                  all_seeds: bool = False, reference: str | None = None, jobs: int | str = 1) -> dict:
+                  all_seeds: bool = False, reference: str | None = None, jobs: int | str = 1,
+                  preview: str = DEFAULT_PREVIEW_GAUGE) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
@@ -435,10 +447,15 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     tuned for it; the default controllers are the baselines and the agents trained in that version. A controller
     of your own (a `control.base.Controller` with a new `name`, its `env_id`, `env_kwargs` and `predict`) may stand
     in the list beside the names: it runs in its own environment, in this process (not with `ray`), and is
-    compared as any other (docs/benchmark.md)."""
+    compared as any other (docs/benchmark.md). Every controller that reads a preview through its observation reads
+    it as `preview` says: "measured" (the default: an entry gauge's errors, `envs.gauge`) or "exact". Each
+    controller's information set, and each set's classical controller, bound and room, are in the result
+    (`evaluation.verdict`)."""
 
     if env_version not in ENV_VERSIONS:
         raise ValueError(f"--env-version {shown(env_version)} is invalid: one of {list(ENV_VERSIONS)}")
+    if preview not in PREVIEW_GAUGES:
+        raise ValueError(f"--preview {shown(preview)} is invalid: one of {list(PREVIEW_GAUGES)}")
     env_id = env_id_for("gain", env_version)
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
@@ -458,16 +475,19 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if scenarios is None:
         scenarios = t.name == "startup"  # the named scenarios are the paper's 1 mm starts
     result = _header(t, env_version, reference, seed, episodes, all_seeds)
+    result["preview"] = preview
     label = f"benchmark {t.name}"
     units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and processes == 1)
+    firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
+    sets = {name: information_of(name, c, t, env_version) for name, c in firsts.items()}
+    extra = _preview_kwargs(firsts, preview)
     processes = _settle_auto(processes, units, loaded, episodes, ray, t)
     plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     result["plants"] = plants
     start = time.time()
     early = _Early(names, reference)
     records, result["scenarios"] = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label,
-                                                    scenarios=scenarios, complete=early)
-    firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
+                                                    scenarios=scenarios, complete=early, env_kwargs=extra)
     for name in names:
         recs = _records_of(records, name)
         result["controllers"][name] = {**(early.summaries[name] if name in early.summaries else summarize(recs)),
@@ -477,8 +497,32 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
         print(f"{label}: paired intervals (bootstrap) ...", file=sys.stderr, flush=True)
     _compare(result, early.comparisons)
     result["room"] = room(result)
+    result["information"] = information_verdict(result, sets, baselines={n for n in names if n in REGISTRY})
     result["wall_time_s"] = round(time.time() - start, 1)  # printed; not part of the result files
     return result
+
+
+def information_of(name: str, ctrl: Controller, task: Task, version: str) -> str:
+    """What controller `name` reads (`control.information`): a baseline's declared set, else the set its
+    environment's observation gives it (an agent's card, an exported graph, a user's controller)."""
+    if name in REGISTRY:
+        return REGISTRY[name].information
+    cfg = task.configs[version]
+    return from_env_kwargs(ctrl.env_kwargs, cfg.observation, reads_plant=ctrl.reads_plant)
+
+
+def _reads_preview(ctrl: Controller) -> bool:
+    """The controller reads a preview through its observation (its environment names look-aheads)."""
+    seen = ctrl.env_kwargs.get("observation") if isinstance(ctrl.env_kwargs, dict) else None
+    return isinstance(seen, dict) and bool(seen.get("preview_samples"))
+
+
+def _preview_kwargs(ctrls: Mapping[str, Controller], preview: str) -> dict[str, dict]:
+    """The environment keywords that give each preview reader the benchmark's preview (none where it is exact,
+    the environments' default)."""
+    if preview == "exact":
+        return {}
+    return {n: {"observation": {"preview_gauge": preview}} for n, c in ctrls.items() if _reads_preview(c)}
 
 
 #: the bounds the room is measured with: controllers that know the plant (not deployable), each with what it
@@ -488,7 +532,8 @@ ROOM_BOUNDS = {"pid-pf-oracle": "the per-plant re-tuned classical controller (PI
                "mpc-oracle": "model-predictive control with the plant's state, within +-u_max",
                "mpc-preview": "mpc-oracle with the disturbances' course over its horizon (a preview)"}
 #: the deployable classical controllers, among which the best is named
-DEPLOYABLE_CLASSICAL = ("pid-paper", "pid-nominal", "pid-robust", "pid-adaptive", "pid-pf-robust", "pid-pf-ff")
+DEPLOYABLE_CLASSICAL = ("pid-paper", "pid-nominal", "pid-robust", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
+                        "pid-pf-preview")
 #: a room below this share of the reference's cost is reported as such, without shares (a ratio to a room of
 #: a few tenths of a percent is noise over noise)
 ROOM_THRESHOLD = 0.03
@@ -686,6 +731,9 @@ def format_table(result: dict) -> str:
         lines.append("\nOn this task pid-oracle (the per-plant best fixed PID) costs more on average than pid-robust, "
                      "so the JSON's normalised score runs the other way: below 0 is better than pid-robust.")
     room_md = format_room(result)
+    info_md = format_information(result)
+    if info_md:
+        room_md = (room_md + "\n\n" + info_md) if room_md else info_md
     if room_md:
         lines += ["", room_md]
     lines += _vibration_rows(ctrls) + _actuator_rows(result) + _spread_rows(ctrls) + _estimate_rows(ctrls)
@@ -808,10 +856,12 @@ def _write_files(result: dict, out: Path, task: Task, figures: bool = True) -> l
     files.append(_plot_bars(result, out / "cost_bars.png"))
     if task.name == "startup":
         files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
-                                  result["plants"][0], task=task, version=result.get("env_version", "v0")))
+                                  result["plants"][0], task=task, version=result.get("env_version", "v0"),
+                                  preview=result.get("preview", "exact")))
     else:
         files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["plants"][0],
-                                  scenario=None, task=task, version=result.get("env_version", "v0")))
+                                  scenario=None, task=task, version=result.get("env_version", "v0"),
+                                  preview=result.get("preview", "exact")))
     return files
 
 
@@ -820,7 +870,7 @@ TRACE_SCENARIO = "low-damping-high-leakage"
 
 
 def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, scenario: str | None = TRACE_SCENARIO,
-                 version: str = "v0") -> Path:
+                 version: str = "v0", preview: str = "exact") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -831,7 +881,9 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
     u_max = task.configs[version].base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
-        tr = trace_episode(load_controller(name, task, version=version), scenario=scenario, seed=seed, task=task)
+        ctrl = load_controller(name, task, version=version)
+        tr = trace_episode(ctrl, scenario=scenario, seed=seed, task=task,
+                           env_kwargs=_preview_kwargs({name: ctrl}, preview).get(name))
         info = tr["info"]
         label = f"{name}: {info['severity']:.3g} mm/s, {info['tracking_rms_um']:.3g} um"
         axes[0].plot(tr["t"] * 1e3, tr["x"] * 1e6, lw=0.8, label=label, color=color)
@@ -978,7 +1030,8 @@ def benchmark_from_cli(args) -> int:
     result = run_benchmark(args.controllers, task=args.task, episodes=args.episodes, seed=args.seed,
                            env_version=args.env_version,
                            scenarios=False if args.no_scenarios else None, progress=not args.quiet, ray=args.ray,
-                           all_seeds=args.all_seeds, reference=args.reference, jobs=args.jobs)
+                           all_seeds=args.all_seeds, reference=args.reference, jobs=args.jobs,
+                           preview=getattr(args, "preview", DEFAULT_PREVIEW_GAUGE))
     print(format_table(result))
     print(f"\n({result['wall_time_s']} s)")
     if args.json:

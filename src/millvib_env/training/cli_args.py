@@ -75,14 +75,15 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
                    help="controllers to evaluate: baselines (pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "
-                        "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle; v1: mpc-oracle mpc-preview), shipped agent "
+                        "lqr-oracle pid-pf-robust pid-pf-ff pid-pf-oracle; v1: pid-pf-preview mpc-oracle mpc-preview), "
+                        "shipped agent "
                         "names (folders under agents/, e.g. ppo-gain-pf; verified against agents/MANIFEST.sha256) or "
                         "paths to agent folders, which are trusted code: SB3 unpickles parts of model.zip; "
                         "exported agents (FILE.onnx from millvib export: onnxruntime, no torch); or the "
                         "groups 'classical' (the deployable classical controllers: pid-paper pid-nominal pid-robust "
-                        "pid-adaptive pid-pf-robust pid-pf-ff; seconds) and 'bounds' (pid-pf-oracle lqr-oracle; v1: "
-                        "mpc-oracle mpc-preview; minutes) (default: every baseline and every shipped agent trained on "
-                        "the task)")
+                        "pid-adaptive pid-pf-robust pid-pf-ff; v1: pid-pf-preview; seconds) and 'bounds' "
+                        "(pid-pf-oracle lqr-oracle; v1: mpc-oracle mpc-preview; minutes) (default: every baseline "
+                        "and every shipped agent trained on the task)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "
                         "controller, sensors in the loop, a servo valve with dynamics and a +-10 V amplifier; "
@@ -100,6 +101,11 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="the controller every other is paired with on the same plants (the table's 'vs' columns, "
                         "paired_plane.png, the JSON's 'paired'); default pid-pf-robust, the strongest deployable "
                         "classical controller; run even where --controllers leaves it out")
+    p.add_argument("--preview", default="measured", choices=["measured", "exact"],
+                   help="the preview every controller that reads one gets (the students, pid-pf-preview): measured, "
+                        "as an entry gauge gives it (timing, force-model and noise errors, no eccentricity: "
+                        "docs/environments.md; default), or exact, the plant's own course. mpc-preview always knows "
+                        "the exact course")
     p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios (startup only)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "

@@ -38,6 +38,7 @@ from millvib_env._paths import atomic_folder, write_text_atomic
 from millvib_env.control.factory import load_controller
 from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import ObsStats
+from millvib_env.control.preview import DEFAULT_PREVIEW, preview_env_kwargs
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.loop.kernel import K_UCTRL
 from millvib_env.tasks import Task, takes_task
@@ -45,8 +46,6 @@ from millvib_env.training.train import N_VALIDATION, validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
 
-#: the preview's look-aheads (control samples: 0.5-20 ms at 2 kHz)
-DEFAULT_PREVIEW = (1, 2, 4, 8, 16, 24, 32, 40)
 #: the measured channels' history the student reads (control samples: 0.5-16 ms before)
 DEFAULT_HISTORY = (1, 2, 4, 8, 16, 32)
 #: the loop's sample the student reads (`observation.loop_sample`): the one its action is added to
@@ -54,17 +53,12 @@ DEFAULT_LOOP_SAMPLE = "current"
 
 
 def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0,
-                       history=(), loop_sample: str = "previous") -> dict:
-    """The student's environment: a residual of +-`range_v` on `base`, the load cells, the preview, (where
-    `history` names lags) the measured channels' history, and the loop's sample it reads
-    (`observation.loop_sample`)."""
-    seen = {"force": True, "preview_samples": list(preview)}
-    if history:
-        seen["history_samples"] = list(history)
-    if loop_sample != "previous":
-        seen["loop_sample"] = loop_sample
-    return {"residual": True, "reward": {"w_vibration": 1.0, "w_effort": 0.0}, "observation": seen,
-            "actions": {"residual_gains": base, "residual_range_v": float(range_v)}}
+                       history=(), loop_sample: str = "previous", gauge: str | dict = "exact") -> dict:
+    """The student's environment (`control.preview.preview_env_kwargs`): a residual of +-`range_v` on `base`, the
+    load cells, the preview, (where `history` names lags) the measured channels' history, and the loop's sample it
+    reads (`observation.loop_sample`)."""
+    return preview_env_kwargs(preview, range_v=range_v, base=base, history=history, loop_sample=loop_sample,
+                              gauge=gauge)
 
 
 def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds: list[int], stats, progress=None,

@@ -4,4 +4,4 @@ Optuna) and every baseline of a task, as `millvib tune` writes them to configs/c
 #: every entry `millvib tune` tunes, in its order (`baselines.TUNERS`; a test holds them equal). Here, where the
 #: command line's parser reads it without loading the controllers that `baselines` imports
 ENTRIES = ("pid-nominal", "pid-robust", "pid-oracle", "lqr-oracle", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
-           "pid-pf-oracle")
+           "pid-pf-oracle", "pid-pf-preview")

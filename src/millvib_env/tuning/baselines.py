@@ -40,6 +40,7 @@ from millvib_env._paths import check_output, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.control.factory import control_config_path, control_entry, oracle_table
+from millvib_env.control.registry import LOOP_ONLY
 from millvib_env.control.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.distributed import run_jobs
@@ -220,6 +221,19 @@ def _tune_pf_ff(r: _Run) -> dict:
         "(250 iterations, KD <= 300) over the 32 pid-robust plants"))
 
 
+def _tune_preview(r: _Run) -> dict:
+    if r.version == "v0":
+        raise ValueError("pid-pf-preview runs on the loop as commissioned: tune it with --env-version v1")
+    r.say("tuning pid-pf-preview (pid-pf-robust + the preview's feedforward, 17 gains) over 32 tuning plants ...")
+    res = tuning.tune_preview(r.seeds["robust"], task=r.t, progress=r.bar("pid-pf-preview"))
+    r.say(f"  cost {res['tuning_cost']:.4f} (pid-pf-robust alone {res['reference_cost']:.4f})")
+    base = r.current("pid-pf-robust").get("from_task") or r.t.name
+    return {**res, "gauge": tuning.PREVIEW_TUNING_GAUGE, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
+            "how": (f"the preview feedforward's 17 gains on pid-pf-robust ({base}'s), minimising the mean cost over "
+                    "the 32 pid-robust plants with the preview measured (envs.gauge defaults): L-BFGS-B from zero "
+                    f"with forward-difference gradients ({res['n_evaluations']} gain sets evaluated)")}
+
+
 def _tune_pf_oracle(r: _Run) -> dict:
 
     base = [float(v) for v in r.current("pid-pf-robust")["log10_gains"]]
@@ -252,7 +266,7 @@ _CELL_TUNERS: dict[str, Callable[..., tuning.TuneResult]] = {"pid-oracle": _pid_
 TUNERS: dict[str, Callable[[_Run], dict]] = {
     "pid-nominal": _tune_nominal, "pid-robust": _tune_robust, "pid-oracle": _tune_pid_oracle, "lqr-oracle": _tune_lqr,
     "pid-adaptive": _tune_adaptive, "pid-pf-robust": _tune_pf_robust, "pid-pf-ff": _tune_pf_ff,
-    "pid-pf-oracle": _tune_pf_oracle,
+    "pid-pf-oracle": _tune_pf_oracle, "pid-pf-preview": _tune_preview,
 }
 #: the entries that `--from-task` shares with another task instead of tuning them (the oracles' tables)
 SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
@@ -271,7 +285,7 @@ def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str
     t = task
     shared_from = None if from_task is None else from_task.name
     r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}), jobs=jobs)
-    todo = list(dict.fromkeys(only or ENTRIES))
+    todo = list(dict.fromkeys(only or [n for n in ENTRIES if version != "v0" or n not in LOOP_ONLY]))
     if optuna:
         r.out.update(_tune_with_optuna(t, r.seeds, todo, optuna, trials, r.say, version))
     for name, step in TUNERS.items():

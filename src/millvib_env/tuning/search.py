@@ -21,13 +21,17 @@ from millvib_env.control.base import Controller
 from millvib_env.control.factory import oracle_table
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.control.policies import LQRPolicy
+from millvib_env.control.named import named_gains
+from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward
+from millvib_env.control.registry import REFERENCE
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.batch import EpisodeBatch, env_id_for
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import Task
 from millvib_env.evaluation.evaluate import run_episodes
 
-__all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable"]
+__all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable",
+           "preview_costs", "tune_preview", "PREVIEW_TUNING_GAUGE"]
 
 #: the coarse grid (log10 of KP, KI, KD) the search starts from
 GRID = (np.arange(4.0, 7.01, 0.25), np.array([-3.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]),
@@ -321,3 +325,59 @@ def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: s
     best = np.array([study.best_params[k] for k in ("log10_kp", "log10_ki", "log10_kd")])
     return {"gains": [float(g) for g in 10.0 ** best], "log10_gains": [round(float(v), 4) for v in best],
             "tuning_cost": round(float(study.best_value), 4), "n_trials": len(study.trials)}
+
+
+#: the measured preview's setting the preview feedforward is tuned with (`envs.gauge`): the benchmark's default
+PREVIEW_TUNING_GAUGE = "measured"
+
+
+def preview_costs(gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task, gauge: str | dict = PREVIEW_TUNING_GAUGE,
+                  chunk: int = 1200) -> np.ndarray:
+    """Mean episode cost of each row of preview-feedforward gains (`control.preview.FF_CHANNELS`, in the tuner's
+    units) over the plants `seeds`, with the preview `gauge` (exact or measured), in one batch per `chunk`
+    environments: environment j runs gain set j // M on plant j % M (each row's numbers as alone)."""
+    sets = np.atleast_2d(np.asarray(gain_sets, float))
+    m = len(seeds)
+    costs = np.empty((sets.shape[0], m))
+    per_chunk = max(1, chunk // m)
+    for start in range(0, sets.shape[0], per_chunk):
+        block = sets[start:start + per_chunk]
+        ctrl = PreviewFeedforward("preview-table", np.repeat(block, m, axis=0), named_gains(REFERENCE, task, "v1"))
+        ctrl.task = task
+        recs = run_episodes(ctrl, list(seeds) * block.shape[0], task=task,
+                            env_kwargs={"observation": {"preview_gauge": gauge}})
+        c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
+        costs[start:start + block.shape[0]] = c
+    return costs.mean(axis=1)
+
+
+def tune_preview(seeds: Sequence[int], *, task: Task, gauge: str | dict = PREVIEW_TUNING_GAUGE, iters: int = 30,
+                 fd_step: float = 0.02, bound: float = 100.0, progress: str | None = None) -> dict:
+    """The preview feedforward's gains (`control.preview`) minimising the mean cost over the plants `seeds`: L-BFGS-B
+    from zero (the reference alone) within +-`bound` (tuner's units), each gradient by forward differences of
+    `fd_step`, the point and its 17 neighbours run in one batch. Returns the gains, their cost, the reference's
+    cost on the same plants and the number of gain sets evaluated."""
+    from tqdm.auto import tqdm
+
+    dim = len(FF_CHANNELS)
+    n_eval = 0
+    best_cost, best_x = math.inf, np.zeros(dim)
+    bar = tqdm(desc=progress, unit="eval", disable=progress is None, leave=False)
+
+    def cost_and_grad(x: np.ndarray) -> tuple[float, np.ndarray]:
+        nonlocal n_eval, best_cost, best_x
+        pts = np.vstack([x, x + fd_step * np.eye(dim)])
+        c = preview_costs(pts, seeds, task=task, gauge=gauge)
+        n_eval += len(pts)
+        bar.update(len(pts))
+        if c[0] < best_cost:
+            best_cost, best_x = float(c[0]), x.copy()
+            bar.set_postfix(best=f"{c[0]:.4f}")
+        return float(c[0]), (c[1:] - c[0]) / fd_step
+
+    with bar:
+        ref_cost, _ = cost_and_grad(np.zeros(dim))
+        optimize.minimize(cost_and_grad, np.zeros(dim), jac=True, method="L-BFGS-B",
+                          bounds=[(-bound, bound)] * dim, options={"maxiter": iters, "ftol": 1e-5})
+    return {"gains": [float(v) for v in best_x], "tuning_cost": round(best_cost, 4),
+            "reference_cost": round(ref_cost, 4), "n_evaluations": n_eval}
