@@ -258,6 +258,7 @@ def test_the_history_observation_is_the_measured_channels_k_steps_ago():
     (["distill", "--net", "0", "--save-dir", "d"], "net"),
     (["distill", "--history", "4", "2", "--save-dir", "d"], "history_samples"),
     (["distill", "--save-dir", "/proc/version/x"], "--save-dir"),
+    (["distill", "--preview", "perfect", "--save-dir", "d"], "--preview"),
 ])
 def test_the_new_commands_refuse_bad_input_in_one_line_before_any_work(argv, what, tmp_path, monkeypatch, capsys):
     from millvib_env.cli import main as cli_main
@@ -289,6 +290,7 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path, caps
     assert card["validation"]["seeds"] == "15000-15003"  # the first of the task's validation plants
     agent = load_controller(str(tmp_path / "agent"), "startup")
     assert agent.env_id == "MillVib-Valve-v1" and agent.card["trained_by"].startswith("DAgger from mpc-preview")
+    assert agent.card["env_kwargs"]["observation"]["preview_gauge"] == "measured"  # learned as the benchmark runs it
     rec = run_episodes(agent, [20000], task="startup")[0]
     assert np.isfinite(rec["cost"]) and not rec["diverged"]
 

@@ -363,7 +363,9 @@ class ValveEnv(MillVibEnv):
     * v1: the loop as commissioned (see `GainScheduleEnv`): the agent's command is added to the digital
       controller's (residual) or drives the valve alone, every 0.5 ms (the loop's 2 kHz), and is
       saturated with it at the amplifier's +-10 V; ``u_range_v`` and ``residual_range_v`` keep their
-      meaning. 1000 steps per ``startup`` episode, 2000 on ``rolling`` and ``change``.
+      meaning. 1000 steps per ``startup`` episode, 2000 on ``rolling`` and ``change``. Later, an option
+      that changes no default: ``observation.preview_gauge`` (the preview as a gauge measures it; ``exact``,
+      the default, gives the same episodes bit for bit as before).
     * v0: initial release (the paper's analog loop, an ideal valve without limit).
     """
 

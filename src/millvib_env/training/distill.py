@@ -137,10 +137,12 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
-            validation_episodes: int = N_VALIDATION) -> dict:
+            validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured") -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
-    on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents')."""
+    on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents'). The
+    student reads the preview as `preview_gauge` says (`envs.gauge`): "measured" (the default, as the benchmark
+    gives it) or "exact" (the shipped students'); the card's env_kwargs say which."""
     import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
@@ -160,7 +162,10 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
 
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
-    kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample)
+    if preview_gauge not in ("measured", "exact"):
+        raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
+    kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample,
+                                gauge=preview_gauge)
     teacher_ctrl = load_controller(teacher, t, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
