@@ -187,3 +187,26 @@ def test_a_task_name_is_looked_up_only_where_it_enters():
         calls.visit(parsed(path))
         found |= {(path.relative_to(ROOT).as_posix(), fn) for fn in calls.found}
     assert found <= TASK_LOOKUPS, sorted(found - TASK_LOOKUPS)
+
+
+def test_every_shipped_card_alone_rebuilds_its_agents_environment():
+    """The plain SB3 recipe builds the environment from the card alone (``gym.make(card["env_id"],
+    **card["env_kwargs"])``): for every shipped agent and seed it is the one `load_controller` runs, task included
+    (the same first observation and plant on a held-out seed of the agent's task)."""
+    import json
+
+    import gymnasium as gym
+    import numpy as np
+
+    import millvib_env  # noqa: F401 - registers the environments
+    from millvib_env.control import load_controller
+
+    for card_path in sorted((ROOT / "agents").glob("*/seed-*/card.json")):
+        card = json.loads(card_path.read_text())
+        ctrl = load_controller(str(card_path.parent))
+        seed = ctrl.task.seeds["heldout"].start
+        plain = gym.make(card["env_id"], **card["env_kwargs"])
+        ours = ctrl.make_env()
+        (o1, i1), (o2, i2) = plain.reset(seed=seed), ours.reset(seed=seed)
+        assert card["env_kwargs"]["config"] == ctrl.task.config, card_path
+        assert np.array_equal(o1, o2) and i1["params"] == i2["params"], card_path

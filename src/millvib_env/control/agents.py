@@ -182,8 +182,9 @@ class AgentPolicy(Controller):
         self.task = card_task(self.card)
 
         # a card may name the gain set its policy builds on (``residual_gains: pid-pf-robust``): numbers from here on
-        self.env_kwargs = resolve_named_gains_for(self.card.get("env_kwargs", {}), self.task,
-                                                  version=env_version(self.env_id))
+        # and the task's config, where an earlier card left it out (the plain SB3 recipe and an export read it)
+        self.env_kwargs = resolve_named_gains_for({"config": self.task.config, **self.card.get("env_kwargs", {})},
+                                                  self.task, version=env_version(self.env_id))
         self.algo = str(self.card["algo"]).lower()
         self.backend = str(self.card.get("backend", "sb3"))  # the library it was trained with
         self.model_format = str(self.card.get("model_format", self.backend))  # the library model.zip is for

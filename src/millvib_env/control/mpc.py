@@ -34,9 +34,10 @@ The weights and the horizon are tuned per task on its tuning plants (configs/con
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -127,12 +128,38 @@ def offset_free_update(w: np.ndarray | None, miss: np.ndarray, a: float) -> np.n
     return a * miss if w is None else w + a * miss
 
 
+#: OSQP's status after it caught a Ctrl-C during a solve (`OSQP_SIGINT`; 10 in OSQP 1.x): it installs its own SIGINT
+#: handler while it solves and returns this status instead of letting Python's KeyboardInterrupt through
+OSQP_SIGINT = 10
+
+
+@functools.cache
+def _osqp_interrupted() -> Callable[[], int]:
+    """OSQP's own record of a Ctrl-C caught during its last solve (`osqp_is_interrupted`, exported by its compiled
+    module): its handler, process-wide while it solves, takes a Ctrl-C delivered to any thread, but the solve reads
+    the flag only between iterations, so a Ctrl-C in a converging solve's last iteration left a SOLVED status (the
+    run went on and wrote its results). Where the build does not export it: a function that says 0 (the status
+    alone is read)."""
+    try:
+        import ctypes
+
+        from osqp import ext_builtin
+
+        lib = ctypes.CDLL(ext_builtin.__file__)  # the module already loaded: the same flag
+        fn = lib.osqp_is_interrupted
+        fn.restype, fn.argtypes = ctypes.c_int, []
+        return fn
+    except (ImportError, OSError, AttributeError):
+        return lambda: 0
+
+
 def _solve_first_move(solver: Any, q: np.ndarray) -> tuple[float, int]:
     """The QP with the linear term `q`, solved warm: its first move (nan where none) and OSQP's status.
     OSQP's compiled solver is called as its Python wrapper calls it (`update_data_vec`, `solve`), without
     the wrapper's bookkeeping around each call (a namespace of every info field, a copy of the data for
     derivatives): the same solve, a sixth of the benchmark's MPC time. Another OSQP build without that object
-    is called through the wrapper."""
+    is called through the wrapper. A Ctrl-C that OSQP caught during the solve is raised here as the
+    KeyboardInterrupt it was: a run is never continued on an interrupted solve's answer."""
     ext = getattr(solver, "_solver", None)
     if ext is None or not hasattr(ext, "update_data_vec"):
         solver.update(q=q)
@@ -142,6 +169,8 @@ def _solve_first_move(solver: Any, q: np.ndarray) -> tuple[float, int]:
         ext.update_data_vec(q=q, l=None, u=None)
         ext.solve()
         x, status = ext.solution.x, ext.info.status_val
+    if int(status) == OSQP_SIGINT or _osqp_interrupted()():
+        raise KeyboardInterrupt
     return (float(x[0]) if x is not None else math.nan), int(status)
 
 

@@ -166,6 +166,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample,
                                 gauge=preview_gauge)
+    card_kwargs = {"config": t.config, **kwargs}  # the card alone rebuilds the environment (the plain SB3 recipe)
     teacher_ctrl = load_controller(teacher, t, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t, version="v1")
     env = gym.make(env_id, config=t.config, **kwargs)
@@ -201,7 +202,8 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))  # noqa: E731
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
-        card = _card(t.name, env_id, kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command, baseline)
+        card = _card(t.name, env_id, card_kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command,
+                     baseline)
         _say(bar, f"iteration {it + 1}: scoring it on validation plants {val_first}-"
                   f"{val_first + validation_episodes - 1}")
         val = validation_result(folder, card, episodes=validation_episodes)
@@ -214,7 +216,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         bar.close()
     assert best is not None  # iterations >= 1: every iteration is validated
     folder, val, it = best
-    card = _card(t.name, env_id, kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
+    card = _card(t.name, env_id, card_kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
                  history[it - 1]["fit_mse"], command, baseline)
     card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
     card.update({"validation": val, "iterations": history, "wall_time_s": round(time.time() - start, 1),

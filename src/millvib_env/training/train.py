@@ -110,8 +110,7 @@ def _agent_env_kwargs(raw, task: Task, version: str) -> dict:
         raise ValueError(f"env_kwargs config = {shown(raw['config'])} in the hyperparameters is not task "
                          f"{shown(task.name)}'s ({shown(task.config)}): choose the task with --task")
     out = resolve_named_gains_for(raw, task, version)
-    if task.name != "startup":
-        out["config"] = task.config
+    out["config"] = task.config  # every task's, startup's too: the card alone rebuilds the environment
     return out
 
 
