@@ -538,3 +538,47 @@ def test_the_command_lines_parser_shows_the_modules_docstrings_without_loading_t
             "'millvib_env.control.export', 'millvib_env.control.factory') if m in sys.modules))\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.stdout.strip() == "[]", run.stderr
+
+
+def test_a_set_point_outside_the_cylinders_stroke_is_refused_in_one_line(capsys):
+    """`simulate --xd 1`: a 1 m set-point lies past the 0.11 m the piston can travel; refused before any work."""
+    from millvib_env.cli import main as cli_main
+    from millvib_env.params import MillParams, PIDGains
+    from millvib_env.plant.integrate import simulate
+
+    assert cli_main(["simulate", "--xd", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "xd = 1.0 m is outside the stroke" in err[0], err
+    with pytest.raises(ValueError, match="outside the stroke"):
+        simulate(MillParams(), PIDGains(1e5, 1e-3), 0.02, xd=-0.2)
+
+
+def test_complex_observation_statistics_are_refused_naming_the_field(tmp_path):
+    """A vecnormalize.npz whose mean is complex was cast to its real part in silence."""
+    from millvib_env.control.normalization import load_obs_stats
+
+    path = tmp_path / "vecnormalize.npz"
+    np.savez(path, mean=np.array([0.5 + 1j, 0.0]), var=np.ones(2), count=10.0, clip_obs=10.0, epsilon=1e-8)
+    with pytest.raises(ValueError, match="mean has dtype complex128; allowed: real numbers"):
+        load_obs_stats(path)
+    np.savez(path, mean=np.zeros(2), var=np.ones(2), count=10.0, clip_obs=10.0, epsilon=1e-8)
+    assert load_obs_stats(path).mean.shape == (2,)
+
+
+def test_a_card_whose_algo_does_not_fit_its_model_is_refused_naming_both(tmp_path):
+    """A card that says `sac` over a PPO model was accepted; its first action now says what does not fit."""
+    import json
+    import shutil
+    from pathlib import Path
+
+    from millvib_env.control import load_controller
+
+    src = Path(__file__).resolve().parents[1] / "agents" / "ppo-gain-pf-rolling" / "seed-0"
+    folder = tmp_path / "agent"
+    shutil.copytree(src, folder)
+    card = json.loads((folder / "card.json").read_text())
+    card["algo"] = "sac"
+    (folder / "card.json").write_text(json.dumps(card))
+    agent = load_controller(str(folder))  # the network loads at its first use
+    with pytest.raises(ValueError, match="the card's algo 'sac' does not fit the model's policy 'ActorCriticPolicy'"):
+        agent.predict(np.zeros((1, 8), np.float32))

@@ -604,3 +604,23 @@ def test_an_interrupted_solve_is_raised_not_answered(monkeypatch):
     monkeypatch.setattr(mpc, "_osqp_interrupted", lambda: (lambda: 2))
     with pytest.raises(KeyboardInterrupt):
         mpc._solve_first_move(types.SimpleNamespace(_solver=ext), np.zeros(3))
+
+
+def test_a_full_disk_is_a_failure_naming_the_file_and_the_old_result_stays(tmp_path, monkeypatch, capsys):
+    """A file system that takes a write into its cache and finds no room when it writes it back (ENOSPC at
+    fsync): `benchmark --json` exits 2 in one line that names the file, and the previous result is as it was."""
+    import errno
+
+    old = tmp_path / "b.json"
+    old.write_text("the previous result")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    rc = cli_main(["benchmark", "--task", "rolling", "--controllers", "pid-paper", "--episodes", "2", "--quiet",
+                   "--json", str(old)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "No space left on device" in err[0] and str(old) in err[0], err
+    assert old.read_text() == "the previous result"
+    assert [p.name for p in tmp_path.iterdir()] == ["b.json"]  # no temporary file left beside it

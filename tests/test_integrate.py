@@ -116,12 +116,13 @@ def test_batch_equals_one_at_a_time():
 @pytest.mark.parametrize("method, ivp_method", [("fast", "odeint"), ("reference", "odeint"), ("reference", "LSODA"),
                                                 ("reference", "RK45-compiled")])
 def test_leaving_the_stroke_is_flagged_not_nan(method, ivp_method):
-    # a soft stand, 2 mm of stroke left above the start and a 5 mm set-point: the piston hits its end
+    # a soft stand, 2 mm of stroke left above the start and a 1.9 mm set-point (a set-point past the stroke is
+    # refused): a stiff PID overshoots it and the piston hits its end
     p = MillParams(k1=1e7, L=0.15 + 2e-3)
-    r = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method, ivp_method=ivp_method)
+    r = simulate(p, PIDGains(1e6, 1e-3), 0.05, xd=1.9e-3, method=method, ivp_method=ivp_method)
     assert r.diverged and 0 < r.t_diverged < 0.05
     if method == "reference":  # a compiled driver hands the segment that leaves to solve_ivp's event location
-        other = simulate(p, PIDGains(1e5, 1e-3), 0.05, xd=5e-3, method=method,
+        other = simulate(p, PIDGains(1e6, 1e-3), 0.05, xd=1.9e-3, method=method,
                          ivp_method={"odeint": "LSODA", "LSODA": "odeint", "RK45-compiled": "RK45"}[ivp_method])
         assert r.t_diverged == pytest.approx(other.t_diverged, abs=1e-6)
     before = r.t < r.t_diverged - 1e-4

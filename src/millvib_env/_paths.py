@@ -47,7 +47,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success rename it onto `path` with the mode a plain
     write would give (0666 less the umask; mkstemp's own is 0600).
 
-    An interrupted or failing writer leaves no half-written file at `path`.
+    An interrupted or failing writer leaves no half-written file at `path`. The new file reaches the disk
+    (fsync) before it takes the old one's place: a file system that accepts a write into its cache and finds no
+    room only when it writes it back (a full disk) fails here, naming `path`, and the old file stays as it was.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -56,11 +58,23 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        _sync(tmp_path)
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
+    except OSError as err:  # a full disk, a quota: the one line names the file the user asked for
+        raise OSError(err.errno, err.strerror or str(err), str(path)) from None
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _sync(path: Path) -> None:
+    """`path`'s written data on the disk (where the file system has a disk to sync to)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 #: the file that marks a folder as a command's result: the command and every entry it wrote

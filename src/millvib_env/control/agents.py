@@ -299,9 +299,17 @@ def acting_policy(path: str | Path, algo: str):
     mode. It acts as ``PPO.load(path).policy`` does (a test compares their actions); it cannot be trained."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
+    from stable_baselines3.common.policies import ActorCriticPolicy
+    from stable_baselines3.sac.policies import SACPolicy
+
     data, params, _ = load_from_zip_file(path, device="cpu")
     if data is None:
         raise ValueError("no data file in the archive")
+    expected = {"ppo": ActorCriticPolicy, "sac": SACPolicy}.get(algo)
+    found = data.get("policy_class")
+    if expected is not None and not (isinstance(found, type) and issubclass(found, expected)):
+        raise ValueError(f"the card's algo {algo!r} does not fit the model's policy "
+                         f"{getattr(found, '__name__', found)!r} (a {expected.__name__} is needed)")
     kwargs = {k: v for k, v in data.get("policy_kwargs", {}).items() if k != "device"}  # as SB3's load
     kwargs["optimizer_class"] = _NoOptimizer
     if algo == "ppo":  # an on-policy learner passes its use_sde; an off-policy one keeps it in policy_kwargs

@@ -54,9 +54,16 @@ def load_obs_stats(path: str | Path, obs_dim: int | None = None) -> ObsStats:
                          "(without them it would run on unnormalised observations and act wrongly)")
     try:
         with np.load(path, allow_pickle=False) as data:
-            stats = ObsStats(np.asarray(data["mean"], float), np.asarray(data["var"], float), float(data["count"]),
-                             float(data["clip_obs"]), float(data["epsilon"]))
+            raw = {k: np.asarray(data[k]) for k in ("mean", "var", "count", "clip_obs", "epsilon")}
     except Exception as err:
+        raise ValueError(f"{shown_path(path)} is not a valid statistics file: {type(err).__name__}: {err}") from None
+    for key, array in raw.items():  # a complex or text value would be cast (its imaginary part dropped) or fail later
+        if array.dtype.kind not in "biuf":
+            raise ValueError(f"{shown_path(path)}: {key} has dtype {array.dtype}; allowed: real numbers")
+    try:
+        stats = ObsStats(raw["mean"].astype(float), raw["var"].astype(float), float(raw["count"]),
+                         float(raw["clip_obs"]), float(raw["epsilon"]))
+    except (TypeError, ValueError) as err:
         raise ValueError(f"{shown_path(path)} is not a valid statistics file: {type(err).__name__}: {err}") from None
     if stats.mean.ndim != 1 or stats.mean.shape != stats.var.shape or not np.all(np.isfinite(stats.mean)) \
             or not np.all(np.isfinite(stats.var)) or np.any(stats.var < 0):

@@ -211,6 +211,16 @@ def _check_stroke(p_list, xs) -> None:
             raise ValueError(f"x0 = {float(x)!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
 
 
+def _check_setpoint(p_list, XD: np.ndarray) -> None:
+    """Each plant's set-point within its cylinder's stroke (-L1, L - L1): a gap the piston cannot reach is no
+    set-point (a 1 m one ran to the envelope and reported a severity)."""
+    for p, row in zip(p_list, XD):
+        lo, hi = float(row.min()), float(row.max())
+        if lo <= -p.L1 or hi >= p.L - p.L1:
+            bad = lo if lo <= -p.L1 else hi
+            raise ValueError(f"xd = {bad!r} m is outside the stroke (-L1, L-L1) = ({-p.L1}, {p.L - p.L1})")
+
+
 def _time_grid(t_end: float, dt_out: float) -> np.ndarray:
     if not _real(t_end) or not _real(dt_out):
         raise ValueError(f"t_end = {shown(t_end)} s and dt_out = {shown(dt_out)} s must be numbers (s)")
@@ -369,6 +379,7 @@ def simulate_batch(params: MillParams | Sequence[MillParams], gains: PIDGains | 
     p_list, g_list = _plants_and_gains(params, gains)
     N = len(p_list)
     XD = _xd_samples(xd, t, N)
+    _check_setpoint(p_list, XD)
     x0s = _start_positions(x0, N)
     P = np.stack([pack(p) for p in p_list])
     if y0 is None:
