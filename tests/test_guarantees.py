@@ -591,7 +591,7 @@ def test_an_interrupted_solve_is_raised_not_answered(monkeypatch):
 
     from millvib_env.control import mpc
 
-    assert mpc.OSQP_SIGINT == osqp.constant("OSQP_SIGINT")
+    assert mpc.OSQP_SIGINT == int(osqp.SolverStatus.OSQP_SIGINT)
     ext = types.SimpleNamespace(update_data_vec=lambda **k: None, solve=lambda: None,
                                 solution=types.SimpleNamespace(x=np.zeros(3)),
                                 info=types.SimpleNamespace(status_val=mpc.OSQP_SIGINT))
