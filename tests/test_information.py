@@ -186,3 +186,15 @@ def test_the_benchmark_measures_the_preview_of_its_readers_and_can_give_it_exact
     assert measured["records"]["pid-pf-robust"] == exact["records"]["pid-pf-robust"]
     assert measured["records"]["pid-pf-preview"] != exact["records"]["pid-pf-preview"]
     assert copy.deepcopy(exact["controllers"]["pid-pf-preview"]["information"]) == "loop+force+schedule+gauge"
+
+
+def test_the_benchmarks_preview_overrides_what_a_readers_own_settings_say():
+    """A controller whose own environment reads the measured preview runs on the exact one under
+    ``--preview exact`` (and the reverse): the benchmark's setting is the one every preview reader gets."""
+    from millvib_env.evaluation.benchmark import _preview_kwargs
+
+    ctrl = load_controller("pid-pf-preview", task="rolling", version="v1")
+    ctrl.env_kwargs["observation"]["preview_gauge"] = "measured"
+    assert _preview_kwargs({"ff": ctrl}, "exact") == {"ff": {"observation": {"preview_gauge": "exact"}}}
+    plain = load_controller("pid-pf-robust", task="rolling", version="v1")
+    assert _preview_kwargs({"pid": plain}, "measured") == {}

@@ -518,10 +518,8 @@ def _reads_preview(ctrl: Controller) -> bool:
 
 
 def _preview_kwargs(ctrls: Mapping[str, Controller], preview: str) -> dict[str, dict]:
-    """The environment keywords that give each preview reader the benchmark's preview (none where it is exact,
-    the environments' default)."""
-    if preview == "exact":
-        return {}
+    """The environment keywords that give each preview reader the benchmark's preview, whatever its own card says
+    (a student that learned on the measured preview runs on the exact one under ``--preview exact``)."""
     return {n: {"observation": {"preview_gauge": preview}} for n, c in ctrls.items() if _reads_preview(c)}
 
 
