@@ -569,12 +569,15 @@ def _cpu_s(pid: int) -> float:
 @pytest.fixture(scope="module")
 def mpc_run_compiled():
     """The run below once to its end, so that its kernels are in numba's cache (a fresh cache, as
-    `../shared/tools/other-machine` gives, would have the Ctrl-C land in LLVM's compilation instead: llvmlite
-    reports an interrupt in its callbacks as an ignored exception, a known limit noted in docs/guarantees.md)."""
+    `../shared/tools/other-machine` gives, would have the Ctrl-C land in LLVM's compilation instead, where
+    llvmlite's callbacks swallow it: a known limit, docs/guarantees.md)."""
     subprocess.run([sys.executable, "-c", "import sys; from millvib_cli import main; sys.exit(main())", "benchmark",
-                    "--task", "rolling", "--controllers", "mpc-preview", "--episodes", "1", "--jobs", "1",
-                    "--no-scenarios", "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True,
-                   timeout=600)
+                    *MPC_RUN], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True, timeout=900)
+
+
+#: the run the test interrupts, and runs once whole before (its batch of 24 plants compiles kernels one plant does not)
+MPC_RUN = ("--task", "rolling", "--controllers", "mpc-preview", "--episodes", "24", "--jobs", "1", "--no-scenarios",
+           "--quiet")
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -585,8 +588,7 @@ def test_ctrl_c_during_the_mpc_bounds_ends_the_benchmark_in_one_line_and_writes_
     bound raises it as the interrupt it was, so a Ctrl-C while `mpc-preview` runs ends the command: one line, 130,
     no result (not a finished run on one interrupted solve's answer; before, about one time in five here)."""
     out = tmp_path / "b.json"
-    proc = _millvib("benchmark", "--task", "rolling", "--controllers", "mpc-preview", "--episodes", "24", "--jobs", "1",
-                    "--no-scenarios", "--quiet", "--json", str(out))
+    proc = _millvib("benchmark", *MPC_RUN, "--json", str(out))
     _wait_for(lambda: _cpu_s(proc.pid) >= after_cpu_s, proc, f"{after_cpu_s} CPU-s of the run")
     proc.send_signal(signal.SIGINT)
     err = proc.communicate(timeout=300)[1]
