@@ -9,11 +9,11 @@ from millvib_env.control.factory import load_controller
 from millvib_env.control.information import (ATOMS, bound_candidates, classical_candidates, from_env_kwargs,
                                              is_oracle, label)
 from millvib_env.control.named import resolve_named_gains_for
-from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward, _unslog, preview_env_kwargs
+from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward, preview_env_kwargs
 from millvib_env.control.registry import REGISTRY
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.gauge import GaugeSettings, gauge_force, gauge_settings
-from millvib_env.envs.observation import OBS_SCALES, slog
+from millvib_env.envs.observation import OBS_SCALES, slog, unslog
 from millvib_env.evaluation.benchmark import run_benchmark
 from millvib_env.evaluation.verdict import information_verdict
 from millvib_env.tasks import get_task
@@ -91,7 +91,7 @@ def test_the_feedforward_reads_the_channels_back_as_the_observation_scaled_them(
     for scale, q in (("load_force", np.array([-3e5, -1.0, 0.0, 2e3, 8e5])),
                      ("error", np.array([-4e-3, -1e-7, 0.0, 3e-6, 1e-4]))):
         y = slog(q, *OBS_SCALES[scale][2:]).astype(np.float32)
-        assert np.allclose(_unslog(y, scale), q, rtol=1e-5, atol=1e-3 * OBS_SCALES[scale][2])
+        assert np.allclose(unslog(y, scale), q, rtol=1e-5, atol=1e-3 * OBS_SCALES[scale][2])
 
 
 def test_a_feedforward_with_zero_gains_adds_nothing_and_a_bad_gain_is_refused():

@@ -22,7 +22,6 @@ itself) finds the family's best.
 
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 import numpy as np
@@ -30,7 +29,7 @@ import numpy as np
 from millvib_env._checks import shown
 from millvib_env.control.base import Controller
 from millvib_env.tasks import default_task
-from millvib_env.envs.observation import OBS_SCALES, Observer
+from millvib_env.envs.observation import Observer, unslog
 
 __all__ = ["DEFAULT_PREVIEW", "FF_CHANNELS", "FF_SCALES", "PreviewFeedforward", "preview_env_kwargs"]
 
@@ -62,12 +61,6 @@ FF_CHANNELS = tuple([f"preview_force_{k}" for k in DEFAULT_PREVIEW] + [f"preview
 #: a gain of 1 in the tuner's units: 1 V per 10 kN of force, 1 V per 1 um of set-point (the reference's KP is about
 #: 1.3 V/um; a force step moves the stand about 1 um per 2 kN)
 FF_SCALES = np.array([1e-4] * len(DEFAULT_PREVIEW) + [1e6] * len(DEFAULT_PREVIEW) + [1e-4])
-
-
-def _unslog(y: np.ndarray, scale: str) -> np.ndarray:
-    """The inverse of `envs.observation.slog` for the channel scale `scale` (an OBS_SCALES key)."""
-    q0, q_max = OBS_SCALES[scale][2:]
-    return np.sign(y) * q0 * np.expm1(np.abs(y) * math.log1p(q_max / q0))
 
 
 class PreviewFeedforward(Controller):
@@ -110,9 +103,9 @@ class PreviewFeedforward(Controller):
         row's number is the same whatever the batch)."""
         x = obs[:, self._columns()].astype(float)
         n_k = len(DEFAULT_PREVIEW)
-        x[:, :n_k] = _unslog(x[:, :n_k], "load_force")
-        x[:, n_k:2 * n_k] = _unslog(x[:, n_k:2 * n_k], "error")
-        x[:, -1] = _unslog(x[:, -1], "load_force")
+        x[:, :n_k] = unslog(x[:, :n_k], "load_force")
+        x[:, n_k:2 * n_k] = unslog(x[:, n_k:2 * n_k], "error")
+        x[:, -1] = unslog(x[:, -1], "load_force")
         v = self._volts if self._volts.ndim == 2 else np.broadcast_to(self._volts, x.shape)
         u = np.zeros(len(x))
         for j in range(x.shape[1]):

@@ -12,7 +12,7 @@ import numpy as np
 
 from millvib_env.params import studied_range
 
-__all__ = ["slog", "OBS_SCALES", "PARAM_OBS_RANGES", "HISTORY_CHANNELS", "Observer"]
+__all__ = ["slog", "unslog", "OBS_SCALES", "PARAM_OBS_RANGES", "HISTORY_CHANNELS", "Observer"]
 
 #: with observe_params, log c1 and log Ct are mapped linearly from these ranges to [-1, 1]
 PARAM_OBS_RANGES = {"c1": studied_range("c1"), "Ct": studied_range("Ct")}
@@ -34,6 +34,13 @@ OBS_SCALES = {
 def slog(q: np.ndarray, q0: float, q_max: float) -> np.ndarray:
     """Signed log scaling to [-1, 1]: sign(q) ln(1 + |q|/q0) / ln(1 + q_max/q0), clipped."""
     return _slog(q, q0, math.log1p(q_max / q0))
+
+
+def unslog(y: np.ndarray, scale: str) -> np.ndarray:
+    """The inverse of `slog` for the channel scale `scale` (an `OBS_SCALES` key), inside the clipping: what a
+    controller that reads a signed-log channel (`control.preview`) recovers in the channel's unit."""
+    q0, q_max = OBS_SCALES[scale][2:]
+    return np.sign(y) * q0 * np.expm1(np.abs(y) * math.log1p(q_max / q0))
 
 
 def _slog(q: np.ndarray, q0, denom) -> np.ndarray:
