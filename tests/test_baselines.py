@@ -138,7 +138,7 @@ def test_the_adaptive_estimators_spool_observer_follows_the_plants_spool():
 
 
 def test_adaptive_gives_the_fallback_until_it_has_seen_motion():
-    ctrl = load_controller("pid-adaptive", "rolling")
+    ctrl = load_controller("pid-adaptive", "rolling", version="v0")
     quiet = {"disturbances": {"setpoint_steps": None, "force_steps": None, "eccentricity": None,
                               "sensor_noise": None}, "plant": {"pulse_amp": 0.0}}
     recs = run_episodes(ctrl, [110_000], task="rolling", env_kwargs=quiet)

@@ -406,37 +406,70 @@ def test_sensor_noise_drawn_ahead_is_one_draw_per_observation_from_the_episodes_
         assert np.array_equal(g, w)
 
 
-def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs():
+@pytest.mark.parametrize("mode", ["SameStep", "NextStep"])
+def test_gymnasiums_vector_entry_point_equals_sync_vector_env_over_single_envs(mode):
     """gym.make_vec(id, n, vectorization_mode="vector_entry_point") is the batched engine behind Gymnasium's
     VectorEnv: step for step (through two episode ends) the same observations, rewards, ends, final observations
-    and infos as SyncVectorEnv over n single environments in the same-step auto-reset mode."""
+    and infos as SyncVectorEnv over n single environments, in either auto-reset mode (next-step the default, as
+    Gymnasium's: the restart's step has reward 0 and no end); a bad mode is refused in one line."""
     import gymnasium as gym
     from gymnasium.vector import AutoresetMode
 
-    n, kw = 3, {"config": "startup"}
-    fast = gym.make_vec("MillVib-GainSchedule-v1", n, vectorization_mode="vector_entry_point", **kw)
+    n, kw, reset_mode = 3, {"config": "startup"}, AutoresetMode(mode)
+    given = {} if reset_mode == AutoresetMode.NEXT_STEP else {"autoreset_mode": reset_mode}
+    fast = gym.make_vec("MillVib-GainSchedule-v1", n, vectorization_mode="vector_entry_point", **given, **kw)
     slow = gym.make_vec("MillVib-GainSchedule-v1", n, vectorization_mode="sync",
-                        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP}, **kw)
+                        vector_kwargs={"autoreset_mode": reset_mode}, **kw)
+    assert fast.metadata["autoreset_mode"] == slow.metadata["autoreset_mode"] == reset_mode
     assert fast.single_action_space == slow.single_action_space and fast.observation_space == slow.observation_space
     (o1, i1), (o2, i2) = fast.reset(seed=7), slow.reset(seed=7)
     np.testing.assert_array_equal(o1, o2)
     assert sorted(i1) == sorted(i2)
-    rng, ends = np.random.default_rng(0), 0
-    for _ in range(101):
+    rng, ends, ended = np.random.default_rng(0), 0, np.zeros(n, bool)
+    for _ in range(103):
         a = rng.uniform(-1, 1, fast.action_space.shape).astype(np.float32)
         got, want = fast.step(a), slow.step(a)
         for x, y in zip(got[:4], want[:4]):
             np.testing.assert_array_equal(x, y)
         assert sorted(got[4]) == sorted(want[4])
         np.testing.assert_array_equal(got[4]["params"]["c1"], want[4]["params"]["c1"])
+        if reset_mode == AutoresetMode.NEXT_STEP:
+            assert np.all(got[1][ended] == 0.0) and not np.any((got[2] | got[3])[ended])  # the restart's step
+        ended = got[2] | got[3]
+        ends += int(np.any(ended))
         if "final_obs" in got[4]:
-            ends += 1
             done = got[4]["_final_obs"]
             np.testing.assert_array_equal(done, want[4]["_final_obs"])
             np.testing.assert_array_equal(np.stack(got[4]["final_obs"][done]), np.stack(want[4]["final_obs"][done]))
     assert ends == 2
     with pytest.raises(ValueError, match="seed"):
         fast.reset(seed=[1, 2])
+    with pytest.raises(ValueError, match="autoreset_mode = 'later' is invalid"):
+        gym.make_vec("MillVib-GainSchedule-v1", 2, vectorization_mode="vector_entry_point", autoreset_mode="later")
+
+
+def test_gymnasiums_vector_wrappers_run_on_the_vector_entry_point_of_every_id():
+    import gymnasium as gym
+    from gymnasium.wrappers.vector import NormalizeObservation, RecordEpisodeStatistics
+
+    from millvib_env.envs.specs import ENV_SPECS
+
+    for env_id in ENV_SPECS:
+        env = RecordEpisodeStatistics(NormalizeObservation(
+            gym.make_vec(env_id, 2, vectorization_mode="vector_entry_point")))
+        obs, _ = env.reset(seed=0)
+        for _ in range(3):
+            obs, *_ = env.step(np.zeros(env.action_space.shape, np.float32))
+        assert obs.shape == env.observation_space.shape and np.all(np.isfinite(obs))
+    env = RecordEpisodeStatistics(gym.make_vec("MillVib-GainSchedule-v1", 2, vectorization_mode="vector_entry_point"))
+    env.reset(seed=0)
+    for _ in range(60):
+        _, _, term, trunc, info = env.step(np.zeros(env.action_space.shape, np.float32))
+        if np.any(term | trunc):
+            assert np.all(info["episode"]["l"][info["_episode"]] > 0)
+            break
+    else:
+        raise AssertionError("no startup episode ended within 60 decisions")
 
 
 def test_every_task_config_has_its_own_id_that_runs_the_same_episodes():

@@ -101,9 +101,59 @@ def test_a_feedforward_with_zero_gains_adds_nothing_and_a_bad_gain_is_refused():
     b = _batch("measured", n=3)
     obs = b.reset([120000, 120001, 120002])
     assert np.all(zero.predict(obs)[0] == 0.0)
-    assert np.any(ctrl.predict(obs)[0] != 0.0) or True  # the tuned one may rest at the start; it runs
     with pytest.raises(ValueError, match="17 finite"):
         PreviewFeedforward("bad", [1.0, float("inf")] + [0.0] * 15, [1.0, 1.0, 1.0, 1.0])
+
+
+def _zero_action_costs(env_kwargs, seeds):
+    b = EpisodeBatch("MillVib-Valve-v1", len(seeds), **resolve_named_gains_for({"config": "rolling", **env_kwargs},
+                                                                               ROLLING, "v1"))
+    b.reset(seeds)
+    while True:
+        _, dones, infos = b.step(np.zeros((len(seeds), 1), np.float32), restart=False)
+        if dones.all():
+            return np.array([i["severity"] for i in infos]), b
+
+
+def test_the_environments_feedforward_under_a_zero_residual_is_the_classical_preview_controller():
+    ctrl = load_controller("pid-pf-preview", task="rolling", version="v1")
+    ctrl.task = ROLLING
+    seeds = [120003, 120004, 120005]
+    kw = copy.deepcopy(ctrl.env_kwargs)
+    kw["observation"]["preview_gauge"] = "measured"
+    b = EpisodeBatch("MillVib-Valve-v1", len(seeds), **resolve_named_gains_for({"config": "rolling", **kw},
+                                                                               ROLLING, "v1"))
+    obs = b.reset(seeds)
+    while True:
+        obs, dones, infos = b.step(ctrl.predict(obs)[0], restart=False)
+        if dones.all():
+            break
+    classical = np.array([i["severity"] for i in infos])
+    kw["actions"] = {**kw["actions"], "residual_feedforward": ctrl.feedforward_gains(), "residual_range_v": 10.0}
+    in_env, b2 = _zero_action_costs(kw, seeds)
+    # the same controller; the classical one's command passes through a float32 action, the environment's does not
+    assert np.allclose(in_env, classical, rtol=1e-5)
+    assert np.any(b2.core.u_ff != 0.0)
+    kw["actions"]["residual_feedforward"] = {c: 0.0 for c in FF_CHANNELS}
+    plain, _ = _zero_action_costs(kw, seeds)
+    assert np.all(np.abs(plain - classical) > 1e-4 * classical)  # the feedforward is what made the difference
+
+
+@pytest.mark.parametrize("ff, needle", [({"pressure": 1.0}, "signed-log channels only"),
+                                        ({"preview_force_3": 1.0}, "does not carry"),
+                                        ({"load_force": float("nan")}, "residual_feedforward.load_force"),
+                                        ([1.0], "a mapping of observation channel")])
+def test_a_bad_feedforward_is_refused_in_one_line_naming_it(ff, needle):
+    kw = preview_env_kwargs(range_v=10.0)
+    kw["actions"]["residual_feedforward"] = ff
+    with pytest.raises(ValueError, match=needle):
+        EpisodeBatch("MillVib-Valve-v1", 1, **resolve_named_gains_for({"config": "rolling", **kw}, ROLLING, "v1"))
+
+
+def test_a_feedforward_outside_a_residual_environment_is_refused():
+    import gymnasium as gym
+    with pytest.raises(ValueError, match="residual valve"):
+        gym.make("MillVib-Valve-v1", config="rolling", actions={"residual_feedforward": {"load_force": 1e-6}})
 
 
 ORACLES = {"pid-oracle", "lqr-oracle", "pid-pf-oracle", "mpc-oracle", "mpc-preview"}

@@ -22,7 +22,7 @@ PF_GAINS = [1.0e6, 1.0e8, 300.0, 1.0e-4]
 def _ideal_loop(rate_hz: float) -> dict:
     """v1's overrides that scale the loop back to the paper's: the sampled controller at `rate_hz`, no delay,
     no filters, no noise, the ideal valve without limit, and v0's plants and sensors."""
-    v0 = load_env_config("startup")
+    v0 = load_env_config("startup", version="v0")
     return {"plant": "paper", "control_dt_s": 1.0 / rate_hz, "sample_rate_hz": 40000.0,
             "randomize": {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in v0.randomize},
             "disturbances": {"sensor_noise": None}, "reward": {"terminal_per_step": 0.0},
@@ -62,8 +62,8 @@ def test_scaled_back_to_the_ideal_loop_v1_gives_v0_costs_within_one_percent():
 
     seeds = [20003, 20017, 20029]
     for name in ("pid-robust", "pid-pf-robust"):
-        v0 = [r["cost"] for r in run_episodes(load_controller(name, "startup"), seeds, task="startup")]
-        ctrl = load_controller(name, "startup")
+        v0 = [r["cost"] for r in run_episodes(load_controller(name, "startup", version="v0"), seeds, task="startup")]
+        ctrl = load_controller(name, "startup", version="v0")
         ctrl.env_id = "MillVib-GainSchedule-v1"
         v1 = [r["cost"] for r in run_episodes(ctrl, seeds, task="startup", env_kwargs=_ideal_loop(40000.0))]
         assert np.allclose(v1, v0, rtol=0.01), (name, v0, v1)
@@ -140,7 +140,8 @@ def test_a_diverged_episode_costs_at_least_the_cap_in_the_benchmark_and_the_tuni
         import millvib_env.tuning.search as tuning
 
         mp.setattr(tuning, "gain_env_kwargs", lambda *a, **k: {"config": "startup", **tight})
-        assert mean_costs(np.log10([gains]), [20000, 20001], task=get_task("startup"))[0] >= DIVERGED_COST
+        assert mean_costs(np.log10([gains]), [20000, 20001], task=get_task("startup"), version="v0")[0] \
+            >= DIVERGED_COST
 
 
 def test_failing_early_never_earns_more_reward_in_v1():

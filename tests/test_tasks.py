@@ -221,7 +221,8 @@ def test_a_task_carries_its_config_in_each_version_and_refuses_another():
     from millvib_env.envs.config import cached_env_config
 
     assert t.configs["v1"] is cached_env_config("rolling", "v1")
-    assert list(t.configs) == ["v0", "v1"] and t.configs["v0"].raw["plant"] == load_env_config("rolling").raw["plant"]
+    assert list(t.configs) == ["v0", "v1"]
+    assert t.configs["v0"].raw["plant"] == load_env_config("rolling", version="v0").raw["plant"]
     with pytest.raises(ValueError, match="version = 'v9' is invalid"):
         t.configs["v9"]
     assert "v1" in t.configs and "v9" not in t.configs and t.configs.get("v9") is None

@@ -286,3 +286,47 @@ def test_sweep_cli_writes_its_folder(tmp_path):
     assert cli_main(["sweep", "--controllers", "pid-paper", "--plants", "1", "--out", str(out), "--quiet",
                      "--no-figures"]) == 0
     assert (out / "plants.csv").exists() and not (out / "maps.png").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("form", ["true", "false", "\"dict(norm_obs=True, norm_reward=False)\"", "{norm_obs: true}"])
+def test_every_normalize_form_train_accepts_saves_an_agent_that_loads_and_benchmarks(tmp_path, form):
+    cfg = tmp_path / "ppo.yml"
+    cfg.write_text(TINY.format(policy="MlpPolicy", extra=EXTRA["ppo"]).replace(
+        'normalize: "dict(norm_obs=True, norm_reward=True)"', f"normalize: {form}"))
+    card = train("ppo", task="startup", seed=2, config=str(cfg), log_dir=str(tmp_path / "runs"), eval_freq=128,
+                 n_eval_episodes=2, checkpoint_freq=128, progress=False, save_dir=str(tmp_path / "agent"),
+                 validation_episodes=2)
+    agent = load_controller(str(tmp_path / "agent"))
+    assert (agent._stats_path is None) == (form == "false") and card["normalize"] != "True"
+    result = run_benchmark([str(tmp_path / "agent")], task="startup", episodes=1, progress=False)
+    assert all(np.isfinite(row["cost_mean"]) for row in result["controllers"].values())
+
+
+def test_the_zoo_forms_of_normalize_are_read_as_data_and_a_bad_one_is_refused_in_one_line():
+    from millvib_env.control.normalization import normalize_kwargs, normalizes_obs
+
+    both = {"norm_obs": True, "norm_reward": True}
+    for form, want in ((True, both), ("True", both), (False, None), ("None", None), (None, None),
+                       ("dict(norm_obs=True, norm_reward=False)", {"norm_obs": True, "norm_reward": False}),
+                       ({"clip_obs": 5.0}, {**both, "clip_obs": 5.0}), ("{'norm_obs': False}",
+                                                                       {"norm_obs": False, "norm_reward": True})):
+        assert normalize_kwargs(form) == want, form
+    assert not normalizes_obs("{'norm_obs': False}") and normalizes_obs("{'norm_obs': True}")
+    assert not normalizes_obs("{}")  # an early card's text for none
+    for bad in ("yes", "dict(norm_obs=os.system('x'))", {"foo": 1}, {"norm_obs": "x"}, {"clip_obs": -1.0}):
+        with pytest.raises(ValueError, match="normalize = .* is invalid"):
+            normalize_kwargs(bad)
+
+
+def test_a_task_configs_own_id_and_a_shipped_file_by_name_are_found_from_any_directory(tmp_path, monkeypatch):
+    from millvib_env.training.hyperparams import load_hyperparams, shipped_hyperparams
+
+    monkeypatch.chdir(tmp_path)
+    assert shipped_hyperparams("pf/ppo") == shipped_hyperparams("configs/agents/pf/ppo.yml")
+    assert shipped_hyperparams("pf/ppo.yml").is_file()
+    with pytest.raises(ValueError, match=r"not found; the shipped ones, by name: .*'pf/ppo'"):
+        shipped_hyperparams("pf/nope")
+    for algo in ("ppo", "sac", "recurrentppo"):
+        generic = load_hyperparams(algo, "MillVib-GainSchedule-v1")
+        assert load_hyperparams(algo, "MillVib-GainSchedule-Rolling-v1") == generic

@@ -261,7 +261,7 @@ def _cmd_distill(args) -> int:
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
                    loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]),
-                   preview_gauge=args.preview,
+                   preview_gauge=args.preview, on=args.on,
                    validation_episodes=args.validation_episodes)
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
@@ -493,6 +493,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the preview the student reads while it learns: measured, as an entry gauge gives it and the "
                         "benchmark runs it (timing, force-model and noise errors, no eccentricity; default), or "
                         "exact (the shipped students')")
+    p.add_argument("--on", default=None, choices=["pid-pf-preview"],
+                   help="the classical controller the residual sits on: pid-pf-preview, the classical controller of "
+                        "the student's own information (its tuned feedforward then runs in the environment, and the "
+                        "student learns what it misses within +-RANGE_V; use --range-v 10); default: the "
+                        "reference's PID alone")
     p.add_argument("--save-dir", required=True, metavar="DIR",
                    help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

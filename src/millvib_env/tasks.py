@@ -21,6 +21,7 @@ from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import CONFIG_ALIASES, EnvConfig, VersionedConfig
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["Task", "get_task", "takes_task", "default_task", "list_tasks", "all_tasks", "SEED_PURPOSES",
            "TASK_ALIASES", "MAX_TRAINING_SEED"]
@@ -47,11 +48,11 @@ class Task:
     def __post_init__(self) -> None:
         object.__setattr__(self, "configs", VersionedConfig(self.config))
 
-    def env_config(self, version: str = "v0") -> EnvConfig:
+    def env_config(self, version: str = DEFAULT_VERSION) -> EnvConfig:
         """``configs[version]``, kept for one release for earlier scripts."""
         return self.configs[version]
 
-    def gain_map(self, version: str = "v0") -> GainMap:
+    def gain_map(self, version: str = DEFAULT_VERSION) -> GainMap:
         """The gain map of the task's gain-schedule action in `version`, kept for one release for earlier scripts:
         ``GainMap.from_config(task.configs[version])``."""
         return GainMap.from_config(self.configs[version])
@@ -158,7 +159,7 @@ def get_task(name: str | Task) -> Task:
 
 
 def default_task() -> Task:
-    """The task of a call that names none: startup (the paper's 1 mm start)."""
+    """The task of a call that names none: startup (a gap change under load; v0: the paper's 1 mm start)."""
     return get_task("startup")
 
 

@@ -20,7 +20,7 @@ from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
 from millvib_env.control.manifest import verify_agent
 from millvib_env.control.named import resolve_named_gains_for
-from millvib_env.control.normalization import STATS_FILE, ObsStats, load_obs_stats
+from millvib_env.control.normalization import STATS_FILE, ObsStats, load_obs_stats, normalizes_obs
 from millvib_env.control.registry import baseline_names
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task, takes_task
@@ -151,9 +151,7 @@ def check_agent(name: str) -> None:
 
     for folder in agent_seed_folders(agent_folder(name)).values():
         card = checked_card(folder)
-        normalize = card.get("normalize", "None")
-        if isinstance(normalize, str) and normalize.strip().startswith(("{", "dict(")) and \
-                normalize.strip() != "{}":
+        if normalizes_obs(card.get("normalize", "None"), f"{folder / 'card.json'}: normalize"):
             load_obs_stats(folder / STATS_FILE)
 
 
@@ -192,12 +190,8 @@ class AgentPolicy(Controller):
         self._model_path = folder / "model.zip"
         if not self._model_path.is_file():
             raise ValueError(f"{shown_path(self._model_path)} is missing: not a complete agent folder")
-        normalize = self.card.get("normalize", "None")
-        if not isinstance(normalize, str) or normalize.strip() not in ("None", "False", "", "{}") and \
-                not normalize.strip().startswith(("{", "dict(")):
-            raise ValueError(f"{card_path}: normalize = {shown(normalize)} is invalid: 'None' or the VecNormalize "
-                             "arguments as train writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
-        self._stats_path = folder / STATS_FILE if normalize.strip() not in ("None", "False", "", "{}") else None
+        normalized = normalizes_obs(self.card.get("normalize", "None"), f"{card_path}: normalize")
+        self._stats_path = folder / STATS_FILE if normalized else None
         if self._stats_path is not None:
             load_obs_stats(self._stats_path)  # a missing or broken file fails here, not at the first step
         self._model: Any = None

@@ -113,8 +113,10 @@ def _metadata(agent, core) -> dict:
     if core.mode == "valve":
         meta["millvib.action"] = ("residual command (V) = action * " if core.residual else "command (V) = action * ") \
             + repr(core.u_range) + (", added to the digital PID's command (gains KP, KI, KD, KPL, KFF: "
-                                    f"{list(core.residual_gains.to_array())}) and limited with it to the "
-                                    "amplifier's range" if core.residual else "")
+                                    f"{[float(g) for g in core.residual_gains.to_array()]})"
+                                    + (" and the fixed feedforward of env_kwargs' actions.residual_feedforward"
+                                       if core.feedforward is not None else "")
+                                    + ", and limited with it to the amplifier's range" if core.residual else "")
     else:
         meta["millvib.action"] = f"gain schedule in [-1, 1]^{core.act_dim} (envs.actions.GainMap of the env config: " \
             f"{json.dumps({k: acts.bounds(k) for k in ('kp', 'ki', 'kd', 'kpl', 'kff')})})"

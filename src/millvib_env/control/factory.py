@@ -19,13 +19,14 @@ from millvib_env.envs.actions import GainMap
 from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import ENV_VERSIONS, EnvConfig
 from millvib_env.tasks import Task, default_task, takes_task
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["load_controller", "load_control_config", "control_entry", "control_config_path", "oracle_table"]
 
 
 @takes_task()
 def load_controller(name: str, task: str | Task | None = None, config: EnvConfig | None = None,
-                    seed: int | None = None, version: str = "v0") -> Controller:
+                    seed: int | None = None, version: str = DEFAULT_VERSION) -> Controller:
     """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>),
     an agent folder path or an exported agent's ONNX graph (``*.onnx``, `control.onnx_policy`: no torch). `seed`
     picks a training seed of a multi-seed agent (default: its lowest; a graph holds one).

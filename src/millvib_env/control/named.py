@@ -16,6 +16,7 @@ from millvib_env._checks import shown
 from millvib_env.control.registry import REGISTRY
 from millvib_env.envs.config import CONFIG_ALIASES
 from millvib_env.tasks import Task, all_tasks, takes_task
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains",
            "resolve_named_gains_for"]
@@ -24,7 +25,7 @@ __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "r
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
-def named_gains(name: str, task: Task, version: str = "v0") -> list[float]:
+def named_gains(name: str, task: Task, version: str = DEFAULT_VERSION) -> list[float]:
     """The gains of the fixed-gain baseline `name` of `task` in environment version `version`:
     its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
     (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
@@ -82,7 +83,7 @@ def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, ver
     """`env_kwargs` (an env's keyword arguments, a card's or a hyperparameter file's ``env_kwargs``) with every
     named gain set replaced by that baseline's gains: in ``actions`` and in a mapping ``config``'s ``actions``.
     `task` defaults to the task whose config ``env_kwargs["config"]`` names, `version` to
-    ``env_kwargs["env_version"]`` (else v0). Returns a new dict; `env_kwargs` is left as it was."""
+    ``env_kwargs["env_version"]`` (else `DEFAULT_VERSION`, v1). Returns a new dict; `env_kwargs` is left as it was."""
     if not has_named_gains(env_kwargs):
         return dict(env_kwargs)
     assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
@@ -96,7 +97,7 @@ def resolve_named_gains_for(env_kwargs: Mapping, task: Task, version: str | None
     if not has_named_gains(out):
         return out
     t = task
-    version = version if version is not None else str(out.get("env_version") or "v0")
+    version = version if version is not None else str(out.get("env_version") or DEFAULT_VERSION)
     if "actions" in out:
         out["actions"] = _resolve_actions(out["actions"], t, version)
     if isinstance(out.get("config"), Mapping) and "actions" in out["config"]:

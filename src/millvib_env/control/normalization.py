@@ -17,7 +17,10 @@ import numpy as np
 from millvib_env._checks import shown, shown_path
 from millvib_env._paths import atomic_path
 
-__all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE"]
+__all__ = ["ObsStats", "save_obs_stats", "load_obs_stats", "STATS_FILE", "normalize_kwargs", "normalizes_obs"]
+
+#: the keywords of SB3's `VecNormalize` a hyperparameter file's ``normalize`` may set
+VECNORMALIZE_KEYS = ("norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon")
 
 STATS_FILE = "vecnormalize.npz"
 
@@ -33,6 +36,51 @@ class ObsStats:
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         return np.clip((obs - self.mean) / np.sqrt(self.var + self.epsilon), -self.clip_obs,
                        self.clip_obs).astype(np.float32)
+
+
+def normalize_kwargs(value, where: str = "normalize") -> dict | None:
+    """Every form of the zoo's ``normalize`` as SB3's `VecNormalize` keywords, None for no normalisation:
+    ``true`` / ``false`` / None, the strings ``"True"``, ``"False"``, ``"None"``, a dict, or the zoo's dict string
+    (``"dict(norm_obs=True, norm_reward=False)"``, ``"{'norm_obs': True}"``, read as data, never run). ``true``
+    is SB3's defaults (observations and rewards normalised). ValueError naming `where` for anything else, so a
+    file is refused before its first training step, never after it."""
+    import ast
+
+    text = value.strip() if isinstance(value, str) else None
+    if value is None or value is False or text in ("None", "False", "false", ""):
+        return None
+    if value is True or text in ("True", "true"):
+        return {"norm_obs": True, "norm_reward": True}
+    if text is not None and text.startswith(("dict(", "{")):
+        try:
+            tree = ast.parse(text, mode="eval").body
+            if isinstance(tree, ast.Call) and isinstance(tree.func, ast.Name) and tree.func.id == "dict" \
+                    and not tree.args:
+                value = {kw.arg: ast.literal_eval(kw.value) for kw in tree.keywords}
+            else:
+                value = ast.literal_eval(tree)
+        except (SyntaxError, ValueError):
+            value = text
+    if not isinstance(value, dict) or any(k not in VECNORMALIZE_KEYS for k in value):
+        raise ValueError(f"{where} = {shown(value)} is invalid: true, false, None, or VecNormalize's keywords "
+                         f"({', '.join(VECNORMALIZE_KEYS)}) as a dict or the zoo's \"dict(norm_obs=True, ...)\"")
+    bools = {k: value[k] for k in ("norm_obs", "norm_reward") if k in value}
+    nums = {k: value[k] for k in value if k not in bools}
+    if any(not isinstance(v, bool) for v in bools.values()) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0
+            for v in nums.values()):
+        raise ValueError(f"{where} = {shown(value)} is invalid: norm_obs and norm_reward are true or false, "
+                         "clip_obs, clip_reward, gamma and epsilon numbers > 0")
+    return {"norm_obs": True, "norm_reward": True, **value}
+
+
+def normalizes_obs(card_value, where: str = "normalize") -> bool:
+    """Whether a card's ``normalize`` (as `normalize_kwargs` reads it) normalises the observations. The text "{}"
+    of an early card means none."""
+    if isinstance(card_value, str) and card_value.strip() == "{}":
+        return False
+    kw = normalize_kwargs(card_value, where)
+    return kw is not None and bool(kw.get("norm_obs", True))
 
 
 def save_obs_stats(venv, path: str | Path) -> Path:

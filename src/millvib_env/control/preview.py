@@ -29,7 +29,8 @@ import numpy as np
 from millvib_env._checks import shown
 from millvib_env.control.base import Controller
 from millvib_env.tasks import default_task
-from millvib_env.envs.observation import Observer, unslog
+from millvib_env.envs.feedforward import ChannelFeedforward
+from millvib_env.envs.observation import Observer
 
 __all__ = ["DEFAULT_PREVIEW", "FF_CHANNELS", "FF_SCALES", "PreviewFeedforward", "preview_env_kwargs"]
 
@@ -80,37 +81,31 @@ class PreviewFeedforward(Controller):
         self._volts = g * FF_SCALES  # V per N or per m
         #: the students' environment on the reference's gains (`base_gains`, as numbers: the env layer takes no names)
         self.env_kwargs = preview_env_kwargs(base=[float(v) for v in base_gains])
-        self._cols: np.ndarray | None = None
+        self._ff: ChannelFeedforward | None = None
 
-    def _columns(self) -> np.ndarray:
-        """The observation's columns of `FF_CHANNELS` in this controller's environment."""
-        if self._cols is None:
+    def _feedforward(self) -> ChannelFeedforward:
+        """The feedforward on `FF_CHANNELS` of this controller's environment (`envs.feedforward`)."""
+        if self._ff is None:
             task = self.task or default_task()
             seen = {**task.configs["v1"].raw["observation"], **self.env_kwargs.get("observation", {})}
             names = Observer("valve", residual=True, gain_names=(), observe_phase=bool(seen.get("phase")),
                              observe_params=bool(seen.get("params")), observe_force=bool(seen.get("force")),
                              noise=None, delay=0, n=1, preview_samples=tuple(seen.get("preview_samples", ())),
                              history_samples=tuple(seen.get("history_samples", ()))).names
-            missing = [c for c in FF_CHANNELS if c not in names]
-            if missing:
-                raise ValueError(f"{self.name}: its environment does not observe {missing}: run it with its own "
-                                 "env_kwargs (the preview's look-aheads and the load cells)")
-            self._cols = np.array([names.index(c) for c in FF_CHANNELS])
-        return self._cols
+            self._ff = ChannelFeedforward(FF_CHANNELS, self._volts, names, where=self.name)
+        return self._ff
+
+    def feedforward_gains(self) -> dict:
+        """The feedforward as an environment's ``actions.residual_feedforward`` (channel -> V per N or per m): the
+        environment then runs this controller under a residual action (its zero action is this controller)."""
+        if self._volts.ndim != 1:
+            raise ValueError(f"{self.name} holds one gain set per environment (a tuning batch); one set is needed")
+        return {c: float(v) for c, v in zip(FF_CHANNELS, self._volts)}
 
     def command_v(self, obs: np.ndarray) -> np.ndarray:
         """The feedforward's command (V) for observation rows `obs`: one sum per row, channel by channel (each
         row's number is the same whatever the batch)."""
-        x = obs[:, self._columns()].astype(float)
-        n_k = len(DEFAULT_PREVIEW)
-        x[:, :n_k] = unslog(x[:, :n_k], "load_force")
-        x[:, n_k:2 * n_k] = unslog(x[:, n_k:2 * n_k], "error")
-        x[:, -1] = unslog(x[:, -1], "load_force")
-        v = self._volts if self._volts.ndim == 2 else np.broadcast_to(self._volts, x.shape)
-        u = np.zeros(len(x))
-        for j in range(x.shape[1]):
-            u += v[: len(x), j] * x[:, j]
-        return u
+        return self._feedforward().command_v(obs)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         obs = np.asarray(observation, dtype=np.float32)

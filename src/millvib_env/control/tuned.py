@@ -15,12 +15,13 @@ from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
 from millvib_env.envs.config import ENV_VERSIONS, checked_gains
 from millvib_env.tasks import Task, get_task, takes_task
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["control_config_path", "load_control_config", "control_entry", "shared_from", "entry_gains",
            "oracle_table"]
 
 
-def control_config_path(task: Task, version: str = "v0") -> Path:
+def control_config_path(task: Task, version: str = DEFAULT_VERSION) -> Path:
     """Where a task's tuned baselines live: configs/control/<task>.yaml for v0 (the analog loop),
     configs/control/<version>/<task>.yaml for a later version (v1: the loop as commissioned)."""
     folder = config_dir() / "control"
@@ -28,7 +29,7 @@ def control_config_path(task: Task, version: str = "v0") -> Path:
 
 
 @takes_task()
-def load_control_config(task: str | Task, version: str = "v0") -> dict[str, Any]:
+def load_control_config(task: str | Task, version: str = DEFAULT_VERSION) -> dict[str, Any]:
     """The task's tuned baselines in environment version `version` (an entry may say `from_task: NAME`)."""
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     return _read(task, choice("version", version, ENV_VERSIONS))
@@ -42,7 +43,7 @@ def _read(task: Task, version: str) -> dict[str, Any]:
     return load_yaml(path, "control config", mapping=True)
 
 
-def control_entry(task: Task, name: str, version: str = "v0", _via: tuple = ()) -> dict:
+def control_entry(task: Task, name: str, version: str = DEFAULT_VERSION, _via: tuple = ()) -> dict:
     """Entry `name` of the task's control config, following `from_task` (a cycle is refused in one line)."""
     if task.name in _via:
         raise ValueError(f"{control_config_path(task, version)} {name}: from_task runs in a cycle "
@@ -68,7 +69,7 @@ def shared_from(entry: Any, where: str) -> Task | None:
     return get_task(entry["from_task"])
 
 
-def entry_gains(task: Task, name: str, entry: dict, version: str = "v0") -> list[float]:
+def entry_gains(task: Task, name: str, entry: dict, version: str = DEFAULT_VERSION) -> list[float]:
     """A fixed-gain entry's gains, checked (`envs.config.checked_gains`): 3-5 finite numbers >= 0."""
     return checked_gains(entry.get("gains") if isinstance(entry, dict) else None,
                          f"{control_config_path(task, version)} {name}.gains",
@@ -76,7 +77,7 @@ def entry_gains(task: Task, name: str, entry: dict, version: str = "v0") -> list
                          "--write-config")
 
 
-def oracle_table(task: Task, name: str = "pid-oracle", version: str = "v0") -> GainTable:
+def oracle_table(task: Task, name: str = "pid-oracle", version: str = DEFAULT_VERSION) -> GainTable:
     """The gain table of oracle `name`, checked as data: positive increasing grids of finite numbers and finite
     log10 gains of shape (len(c1_grid), len(ct_grid), 3-5), gains within 1e-12 to 1e15."""
     entry = control_entry(task, name, version)

@@ -189,6 +189,8 @@ class ActionSettings:
     force_feedforward: bool = False
     scale: str = "log"      # the gain action's scale: "log" or "linear"
     relative: RelativeAction | None = None
+    #: a fixed linear feedforward added under the residual action: observation channel -> V per unit
+    residual_feedforward: dict | None = None
 
     @classmethod
     def from_section(cls, section: Mapping) -> ActionSettings:
@@ -258,7 +260,7 @@ class EnvConfig:
     raw: dict
     base_params: MillParams
     randomize: tuple[Distribution, ...]
-    version: str = "v0"
+    version: str = DEFAULT_VERSION
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "raw", frozen(self.raw))
@@ -499,6 +501,18 @@ _NAMED_HINT = ("the env layer takes gains as numbers; a named gain set is resolv
                "and the CLI do that; in Python: millvib_env.control.named.resolve_named_gains)")
 
 
+def _feedforward(path: str, value: Any) -> None:
+    """A residual's fixed feedforward: observation channel name -> volts per unit of the channel (finite)."""
+    if not isinstance(value, Mapping) or not value:
+        _fail(path, value, "a mapping of observation channel -> gain in V per unit of the channel (N or m), e.g. "
+                           "{preview_force_8: -1.0e-5}")
+    for k, g in value.items():
+        if not isinstance(k, str):
+            _fail(f"{path} key", k, "an observation channel's name")
+        if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(as_float(g)):
+            _fail(f"{path}.{k}", g, "a finite number (V per N or per m)")
+
+
 def _residual_gains(path: str, value: Any) -> None:
     if isinstance(value, str):
         _fail(path, value, _NAMED_HINT)
@@ -565,7 +579,8 @@ _SECTIONS: dict[str, Callable[[str, Any], Any]] = {
         "kp": _gain_bounds, "ki": _gain_bounds, "kd": _gain_bounds, "kpl": _gain_bounds, "kff": _gain_bounds,
         "pressure_feedback": _bool, "force_feedforward": _bool, "relative": _relative,
         "u_range_v": _pos, "residual_range_v": _pos,
-        "residual_gains": _residual_gains, "scale": lambda pp, vv: vv in ("log", "linear") or _fail(
+        "residual_gains": _residual_gains, "residual_feedforward": _feedforward,
+        "scale": lambda pp, vv: vv in ("log", "linear") or _fail(
             pp, vv, "'log' or 'linear'")},
         required=("kp", "ki", "kd", "kpl", "kff", "u_range_v", "residual_range_v", "residual_gains")),
     "envelope": lambda p, v: _section(p, v, {
@@ -623,7 +638,7 @@ def _read_version(name: str | Path, version: str) -> dict:
     return data
 
 
-def load_env_config(config: str | Path | Mapping | None = "startup", *, version: str = "v0",
+def load_env_config(config: str | Path | Mapping | None = "startup", *, version: str = DEFAULT_VERSION,
                     **overrides: Any) -> EnvConfig:
     """Read a config by name (configs/env/<name>.yaml), path or dict and apply keyword overrides.
 
@@ -699,7 +714,7 @@ def _base_params(plant: Any) -> MillParams:
     return base
 
 
-def cached_env_config(name: str, version: str = "v0") -> EnvConfig:
+def cached_env_config(name: str, version: str = DEFAULT_VERSION) -> EnvConfig:
     """The env config `name` in environment version `version` as its file has it (no overrides), read and
     validated once per process and configs folder: every caller that needs a task's plant, periods or gain
     bounds shares it (an EnvConfig is frozen; its sections are read, never written). A task's own:

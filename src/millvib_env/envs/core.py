@@ -27,6 +27,7 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import EpisodeProfile, user_disturbances
 from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
+from millvib_env.envs.feedforward import ChannelFeedforward
 from millvib_env.envs.gauge import gauge_force
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
@@ -113,6 +114,16 @@ class MillVibCore:
                                  preview_samples=seen.preview_samples, history_samples=seen.history_samples)
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
+        #: the fixed feedforward under a residual action (`envs.feedforward`), read from the observation the agent
+        #: acted on; None without one
+        self.feedforward = None
+        if acts.residual_feedforward:
+            if not self.residual:
+                raise ValueError("actions.residual_feedforward is given, but the environment is not a residual valve "
+                                 "environment: a feedforward runs under the residual valve action only "
+                                 "(MillVib-Valve with residual=True)")
+            self.feedforward = ChannelFeedforward.from_mapping(acts.residual_feedforward, self.obs_names)
+        self.ff_limit = float(acts.u_range_v)
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
         self.reward = Reward(config.reward, period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n,
                              user=reward_fn)
@@ -145,6 +156,8 @@ class MillVibCore:
         self.acc_trace = np.zeros((n, n_trace))  # + the sample at t = 0
         self.n_trace = np.zeros(n, dtype=np.int64)
         self.last_action = np.zeros((n, self.act_dim))
+        self.seen = np.zeros((n, len(self.obs_names)), np.float32)  # the observation the agent acts on
+        self.u_ff = np.zeros(n)  # the feedforward's command (V) of the period under way
         self.gains = np.zeros((n, self.gain_map.dim))
         self.ep_return = np.zeros(n)
         self.YS = np.zeros((n, self.n_samp + 1, NY))
@@ -269,7 +282,9 @@ class MillVibCore:
                                 pL=np.array([self.Y[i, IPL]]), u_pid=np.zeros(1))
         info = {"params": self.current_params(i), "scenario": ep.scenario,
                 "disturbances": list(profile.events), "x0": ep.x0}
-        return self.observer.start(i, obs[0]), info
+        first = self.observer.start(i, obs[0])
+        self.seen[i] = first
+        return first, info
 
     # ------------------------------------------------------------------------------------------
     def check_actions(self, actions: Any) -> np.ndarray:
@@ -299,7 +314,7 @@ class MillVibCore:
                 self.C[:, GAIN_COLUMNS[name]] = self.gains[:, j]
             effort = np.mean(np.abs(a - self.last_action), axis=1)
         else:
-            self.C[:, C_UEXT] = a[:, 0] * self.u_range
+            self.C[:, C_UEXT] = self._valve_command(a)
             effort = a[:, 0] ** 2
         self.last_action = a
 
@@ -349,6 +364,7 @@ class MillVibCore:
             obs = self._observe(self._all, e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
                                 pL=cs[:, K_PM], u_pid=cs[:, K_UCTRL] if self.residual else np.zeros(n))
         out_obs = self.observer.push(obs)
+        self.seen[:] = out_obs
 
         ended = np.flatnonzero(terminated | truncated)
         metrics = dict(zip(ended.tolist(), self.episode_metrics_batch(ended, terminated[ended]))) if ended.size else {}
@@ -360,6 +376,15 @@ class MillVibCore:
             infos[i].update(m)
         self._record_history()
         return out_obs, reward.astype(np.float64), terminated, truncated, infos
+
+    def _valve_command(self, a: np.ndarray) -> np.ndarray:
+        """The valve action's volts, and the fixed feedforward under a residual (`envs.feedforward`), computed from
+        the observation the action was taken on and held within the valve action's full scale, as a valve action is."""
+        if self.feedforward is None:
+            return a[:, 0] * self.u_range
+        ff = self.feedforward.command_v(self.seen)
+        self.u_ff = np.minimum(np.maximum(ff, -self.ff_limit), self.ff_limit)
+        return a[:, 0] * self.u_range + self.u_ff
 
     def _hold_last_good(self, failed: np.ndarray) -> None:
         """In the environments whose period failed, hold the last good sample over the samples not written, so

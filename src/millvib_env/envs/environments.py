@@ -13,6 +13,7 @@ from millvib_env.envs.core import MillVibCore
 from millvib_env.envs.disturbances import Disturbance
 from millvib_env.envs.envelope import EnvelopeFunction
 from millvib_env.envs.reward import RewardFunction
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["MillVibEnv", "GainScheduleEnv", "ValveEnv"]
 
@@ -25,7 +26,7 @@ class MillVibEnv(gym.Env):
 
     def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
-                 render_mode: str | None = None, env_version: str = "v0",
+                 render_mode: str | None = None, env_version: str = DEFAULT_VERSION,
                  extra_disturbances: Sequence[Disturbance] | None = None, reward_fn: RewardFunction | None = None,
                  envelope_fn: EnvelopeFunction | None = None, base_controller: LoopController | None = None,
                  **overrides: Any):

@@ -2,14 +2,23 @@
 
 All N plants advance in one compiled call (`MillVibCore`), as in the SB3 `MillVibVecEnv`, behind Gymnasium's
 `VectorEnv` interface: batched spaces, ``reset(seed=s)`` seeding environment i with s + i (or a list of seeds),
-infos as dictionaries of arrays with their ``_key`` masks, and the same-step auto-reset
-(``AutoresetMode.SAME_STEP``): a finished environment returns its next episode's first observation, and its
-last one is in ``infos["final_obs"]`` (its last info in ``infos["final_info"]``). Step for step the same as
-``SyncVectorEnv`` over N single environments in that mode with the same seeds (`tests/test_envs.py`).
+infos as dictionaries of arrays with their ``_key`` masks, and Gymnasium's auto-reset modes (keyword
+``autoreset_mode``; Gymnasium's `make_vec` takes no ``vector_kwargs`` for a vector entry point):
+
+* ``AutoresetMode.NEXT_STEP`` (the default, as Gymnasium's): a finished environment returns its last
+  observation; the next ``step`` ignores its action and returns its next episode's first observation, with
+  reward 0 and neither end flag;
+* ``AutoresetMode.SAME_STEP``: a finished environment returns its next episode's first observation at once,
+  its last one in ``infos["final_obs"]`` (its last info in ``infos["final_info"]``).
+
+Step for step the same as ``SyncVectorEnv`` over N single environments in either mode with the same seeds
+(`tests/test_envs.py`), so Gymnasium's vector wrappers (``NormalizeObservation``, ``RecordEpisodeStatistics``)
+run on it.
 """
 
 from __future__ import annotations
 
+import copy
 from typing import Any, Sequence
 
 import numpy as np
@@ -20,6 +29,7 @@ from millvib_env._checks import seed_or_none, shown
 from millvib_env.envs.actions import base_controller_overrides
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["MillVibVectorEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]
 
@@ -28,12 +38,21 @@ class MillVibVectorEnv(VectorEnv):
     """N MillVib environments of one mode and version, Gymnasium's vector API (module docstring)."""
 
     mode = "gain"
-    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
+    metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *, config: str | dict | None = "startup", residual: bool = False,
-                 observe_params: bool | None = None, observe_phase: bool | None = None, env_version: str = "v0",
+                 observe_params: bool | None = None, observe_phase: bool | None = None,
+                 env_version: str = DEFAULT_VERSION,
                  render_mode: str | None = None, extra_disturbances: Sequence | None = None, reward_fn: Any = None,
-                 envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
+                 envelope_fn: Any = None, base_controller: Any = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **overrides: Any):
+        modes = {m.value: m for m in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)}
+        mode = autoreset_mode.value if isinstance(autoreset_mode, AutoresetMode) else autoreset_mode
+        if mode not in modes:
+            raise ValueError(f"autoreset_mode = {shown(autoreset_mode)} is invalid: one of {list(modes)} "
+                             "(gymnasium.vector.AutoresetMode.NEXT_STEP or SAME_STEP)")
+        self.autoreset_mode = modes[mode]
+        self.metadata = {**type(self).metadata, "autoreset_mode": self.autoreset_mode}
         if render_mode is not None:
             raise ValueError(f"render_mode = {shown(render_mode)} is invalid for the vector environment: None (render "
                              "one environment: gym.make)")
@@ -48,6 +67,7 @@ class MillVibVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.render_mode = None
+        self._autoreset = np.zeros(self.num_envs, dtype=bool)  # next-step mode: who restarts at the next step
 
     def _seeds(self, seed) -> list:
         if seed is None:
@@ -66,9 +86,12 @@ class MillVibVectorEnv(VectorEnv):
         for i, s in enumerate(self._seeds(seed)):
             obs[i], info = self.core.reset_env(i, s, options)
             infos = self._add_info(infos, info, i)
+        self._autoreset[:] = False
         return obs, infos
 
     def step(self, actions):
+        if self.autoreset_mode == AutoresetMode.NEXT_STEP:
+            return self._step_next(actions)
         obs, reward, terminated, truncated, step_infos = self.core.step(actions)
         infos: dict = {}
         for i in range(self.num_envs):
@@ -77,6 +100,26 @@ class MillVibVectorEnv(VectorEnv):
                 infos = self._add_info(infos, {"final_obs": obs[i].copy(), "final_info": info}, i)
                 obs[i], info = self.core.reset_env(i)
             infos = self._add_info(infos, info, i)
+        return obs, reward, terminated, truncated, infos
+
+    def _step_next(self, actions):
+        """The next-step auto-reset: the environments that ended at the last step start their next episode now.
+        The engine steps every environment at once, so those are started before the step (to run on) and again,
+        from the same generator state, after it: the new episode's first observation, exactly as a reset gives it."""
+        restart = np.flatnonzero(self._autoreset)
+        states = {i: copy.deepcopy(self.core.np_random[i].bit_generator.state) for i in restart}
+        for i in restart:
+            self.core.reset_env(i)
+        obs, reward, terminated, truncated, step_infos = self.core.step(actions)
+        infos: dict = {}
+        for i in range(self.num_envs):
+            info = step_infos[i]
+            if i in states:
+                self.core.np_random[i].bit_generator.state = states[i]
+                obs[i], info = self.core.reset_env(i)
+                reward[i], terminated[i], truncated[i] = 0.0, False, False
+            infos = self._add_info(infos, info, i)
+        self._autoreset = terminated | truncated
         return obs, reward, terminated, truncated, infos
 
 

@@ -868,7 +868,7 @@ TRACE_SCENARIO = "low-damping-high-leakage"
 
 
 def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, scenario: str | None = TRACE_SCENARIO,
-                 version: str = "v0", preview: str = "exact") -> Path:
+                 version: str = DEFAULT_VERSION, preview: str = "exact") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")

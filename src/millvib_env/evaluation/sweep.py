@@ -28,6 +28,7 @@ from millvib_env.params import studied_range
 from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.benchmark import episode_records, format_table, summarize
 from millvib_env.evaluation.evaluate import COST_SCALES
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
 
@@ -39,7 +40,7 @@ SEED_OFFSET = 40_000
 CHUNK = 64
 
 
-def _randomize(task: Task, params: Sequence[str], version: str = "v0") -> dict:
+def _randomize(task: Task, params: Sequence[str], version: str = DEFAULT_VERSION) -> dict:
     cfg = task.configs[version]
     out = {d.name: {"dist": d.dist, "low": d.low, "high": d.high} for d in cfg.randomize}
     for name in params:

@@ -39,8 +39,8 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="run each seed as a Ray task (1 CPU each): on a local cluster, or on the running cluster at "
                         "ADDRESS (e.g. auto, ray://head:10001); needs pip install -e '.[ray]'")
     p.add_argument("--n-timesteps", type=int, help="override the YAML's n_timesteps")
-    p.add_argument("--config", help="hyperparameter YAML (default configs/agents/<algo>.yml; the shipped agents' are "
-                        "configs/agents/pf/<algo>.yml)")
+    p.add_argument("--config", help="hyperparameter YAML: a file, or a shipped one by name from any directory (pf/ppo: "
+                        "configs/agents/pf/ppo.yml, the shipped agents'; default configs/agents/<algo>.yml)")
     p.add_argument("--log-dir", default="runs",
                    help="TensorBoard logs and checkpoints go to LOG_DIR/<algo>_<env>_s<seed> "
                         "(LOG_DIR/<algo>_<env>_<task>_s<seed> on rolling and change)")
@@ -70,8 +70,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
 
 def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--task", default="startup",
-                   help="task: startup (the paper's 1 mm start), rolling (steady rolling), change (the plant "
-                        "changes mid-episode) or varied (rolling on a mill whose beta_e, k1, mt and FL vary too); "
+                   help="task: startup (a gap change under load; v0: the paper's 1 mm start), rolling (steady "
+                        "rolling), change (the plant changes mid-episode) or varied (rolling on a mill whose "
+                        "beta_e, k1, mt and FL vary too); "
                         "configs/tasks.yaml (default startup)")
     p.add_argument("--controllers", nargs="+",
                    help="controllers to evaluate: baselines (pid-paper pid-nominal pid-robust pid-oracle pid-adaptive "

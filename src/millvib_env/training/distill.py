@@ -89,7 +89,9 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
                 action = student(x).clamp(-1.0, 1.0).numpy()
         xs.append(obs.copy())
         obs, dones, infos = venv.step(action)
-        u_pid = core.CS[:, K_UCTRL]  # the digital PID's own command at the sample just taken
+        # the digital PID's own command at the sample just taken, and the classical feedforward under the residual
+        # (`actions.residual_feedforward`; zero without one), from the observation the action was taken on
+        u_pid = core.CS[:, K_UCTRL] + core.u_ff
         ys.append(np.clip((u_t - (u_pid if u_b is None else u_b)) / u_range, -1.0, 1.0)[:, None])
         teacher.on_step(infos)
         if progress is not None:
@@ -137,12 +139,17 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             episodes: int = 25, epochs: int = 30, preview=DEFAULT_PREVIEW, save_dir: str | Path,
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
-            validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured") -> dict:
+            validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured", on: str | None = None) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
     on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents'). The
     student reads the preview as `preview_gauge` says (`envs.gauge`): "measured" (the default, as the benchmark
-    gives it) or "exact" (the shipped students'); the card's env_kwargs say which."""
+    gives it) or "exact" (the shipped students'); the card's env_kwargs say which.
+
+    `on`: the classical controller the residual sits on, None for the reference's PID alone, or "pid-pf-preview"
+    (the classical controller of the student's own information: its PID and, as the environment's
+    ``actions.residual_feedforward``, its tuned feedforward on the task; iteration 0 is then that controller, and
+    the student learns only what it misses, within +-`range_v`)."""
     import gymnasium as gym
     import torch
     from stable_baselines3 import PPO
@@ -166,6 +173,12 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample,
                                 gauge=preview_gauge)
+    if on is not None:
+        base = load_controller(on, t, version="v1")
+        if not hasattr(base, "feedforward_gains"):
+            raise ValueError(f"on = {on!r} is invalid: a classical preview controller ('pid-pf-preview') or None")
+        kwargs["actions"] = {**kwargs["actions"], "residual_gains": list(base.env_kwargs["actions"]["residual_gains"]),
+                             "residual_feedforward": base.feedforward_gains()}
     card_kwargs = {"config": t.config, **kwargs}  # the card alone rebuilds the environment (the plain SB3 recipe)
     teacher_ctrl = load_controller(teacher, t, version="v1")
     baseline_ctrl = None if baseline is None else load_controller(baseline, t, version="v1")
@@ -203,7 +216,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
         card = _card(t.name, env_id, card_kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command,
-                     baseline)
+                     baseline, on)
         _say(bar, f"iteration {it + 1}: scoring it on validation plants {val_first}-"
                   f"{val_first + validation_episodes - 1}")
         val = validation_result(folder, card, episodes=validation_episodes)
@@ -217,7 +230,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     assert best is not None  # iterations >= 1: every iteration is validated
     folder, val, it = best
     card = _card(t.name, env_id, card_kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
-                 history[it - 1]["fit_mse"], command, baseline)
+                 history[it - 1]["fit_mse"], command, baseline, on)
     card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
     card.update({"validation": val, "iterations": history, "wall_time_s": round(time.time() - start, 1),
                  "n_timesteps": int(history[it - 1]["samples"]),  # the loop samples its student was fitted on
@@ -243,9 +256,10 @@ def _write_agent(folder: Path, model, stats, card: dict) -> None:
 
 
 def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
-          baseline=None) -> dict:
+          baseline=None, on=None) -> dict:
     suffix = "" if task == "startup" else f"-{task}"
-    return {"name": f"dagger-residual-preview{suffix}", "algo": "ppo", "env_id": env_id, "task": task,
+    name = f"dagger-residual-{'on-' + on if on else 'preview'}{suffix}"
+    return {"name": name, **({"on": on} if on else {}), "algo": "ppo", "env_id": env_id, "task": task,
             "backend": "sb3", "env_kwargs": kwargs, "seed": seed, "normalize": "{'norm_obs': True}",
             "policy": "MlpPolicy (the actor of an SB3 PPO policy)",
             "trained_by": f"DAgger from {teacher}" + (f" less {baseline} (the label: what the teacher's knowledge "

@@ -16,8 +16,9 @@ from typing import Any
 from millvib_env._checks import shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
+from millvib_env.control.normalization import normalize_kwargs
 
-__all__ = ["parse_zoo_value", "load_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
+__all__ = ["parse_zoo_value", "load_hyperparams", "shipped_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
 
 #: our algorithm name -> the zoo's (and the file under configs/agents/)
 ZOO_ALGO = {"ppo": "ppo", "sac": "sac", "recurrentppo": "ppo_lstm"}
@@ -61,17 +62,41 @@ def parse_zoo_value(value: Any, where: str = "value") -> Any:
     return _convert(tree.body, where)
 
 
-def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    """The hyperparameters of `algo` for `env_id` from configs/agents/<algo>.yml (or `path`)."""
+def shipped_hyperparams(path: str | Path) -> Path:
+    """A hyperparameter file: `path` where it is a file, else the shipped file it names from any working directory
+    (``pf/ppo``, ``pf/ppo.yml`` or ``configs/agents/pf/ppo.yml``: configs/agents/pf/ppo.yml of the package);
+    ValueError naming it, with the shipped files, otherwise."""
+    given = Path(path)
+    if given.is_file():
+        return given
+    shipped = config_dir() / "agents"
+    rel = Path(*given.parts[2:]) if given.parts[:2] == ("configs", "agents") else given
+    for candidate in (shipped / rel, shipped / rel.with_name(rel.name + ".yml")):
+        if not rel.is_absolute() and candidate.is_file():
+            return candidate
+    names = sorted(str(f.relative_to(shipped).with_suffix("")) for f in shipped.rglob("*.yml"))
+    raise ValueError(f"hyperparameter file {shown_path(given)} not found; the shipped ones, by name: {names}")
 
-    path = Path(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
-    if not path.is_file():
-        raise ValueError(f"hyperparameter file {shown_path(path)} not found")
+
+def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+    """The hyperparameters of `algo` for `env_id` from configs/agents/<algo>.yml (or `path`): its entry, or for a
+    task config's own id (``MillVib-Valve-Rolling-v1``) without one, its generic id's (``MillVib-Valve-v1``).
+    ``normalize`` comes back as VecNormalize's keywords or None (`control.normalization.normalize_kwargs`)."""
+
+    path = shipped_hyperparams(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     table = load_yaml(path, "hyperparameter file") or {}
+    from millvib_env.envs.specs import ENV_SPECS
+
+    spec = ENV_SPECS.get(env_id)
+    if isinstance(table, dict) and env_id not in table and spec is not None and spec.config is not None \
+            and spec.generic_id in table:
+        env_id = spec.generic_id  # a task config's own id trains with its generic id's entry (the task sets the config)
     if not isinstance(table, dict) or env_id not in table or not isinstance(table[env_id], dict):
         have = sorted(map(str, table)) if isinstance(table, dict) else []  # keys of any type
         raise ValueError(f"{shown_path(path)} has no entry for {shown(env_id)}; it has {have}")
-    hp = {k: parse_zoo_value(v, f"{path} [{env_id}] {k}") for k, v in table[env_id].items()}
+    hp = {k: parse_zoo_value(v, f"{path} [{env_id}] {k}") for k, v in table[env_id].items() if k != "normalize"}
+    if "normalize" in table[env_id]:  # every zoo form, as VecNormalize's keywords (None: none), before any step
+        hp["normalize"] = normalize_kwargs(table[env_id]["normalize"], f"{path} [{env_id}] normalize")
     for key in ("n_envs", "n_timesteps", "policy"):
         if key not in hp:
             raise ValueError(f"{shown_path(path)} [{env_id}] is missing {shown(key)}")

@@ -246,7 +246,7 @@ def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs:
     from stable_baselines3.common.vec_env import VecNormalize
 
     if norm_kwargs is not None:
-        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99), **norm_kwargs)
+        venv = VecNormalize(venv, **{"gamma": hp.get("gamma", 0.99), **norm_kwargs})
     model = _new_model(cls, policy, venv, seed, run, hp, what)
     if _zero_action_is_a_controller(env_id, env_kwargs):
         start_at_zero_action(model)
@@ -307,7 +307,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
               f"{run}" + (f", the agent to {save_dir}" if save_dir else ""), file=sys.stderr, flush=True)
     venv = make_vec_env(env_id, n_envs, seed=train_seed, **env_kwargs)
     eval_env = make_vec_env(env_id, n_eval_episodes, seed=eval_seed, **env_kwargs)
-    norm_kwargs = normalize if isinstance(normalize, dict) else ({} if normalize else None)
+    norm_kwargs = normalize  # `load_hyperparams` read every form as VecNormalize's keywords, or None
     if resume:
         model, venv, done_steps = _resume_from(cls, ckpt_dir, venv, norm_kwargs is not None, str(run / "tb"))
     else:
@@ -345,7 +345,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
                                                                   f"--task {the_task.name} --seed {seed}",
             "hyperparameters": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else repr(v))
                                 for k, v in hp.items()},
-            "policy": policy, "normalize": repr(normalize),
+            "policy": policy, "normalize": "None" if normalize is None else repr(normalize),
             "last_eval_mean_reward": float(evals["results"][-1].mean()) if evals is not None else None}
     if selected is not None:
         card["selected"] = {**selected, "how": f"the best of every evaluation on the same {n_eval_episodes} "

@@ -49,6 +49,7 @@ from millvib_env.params import MillParams
 from millvib_env.tasks import Task, takes_task
 from millvib_env.tuning import ENTRIES  # every entry `millvib tune` tunes, in TUNERS' order
 from millvib_env.tuning import search as tuning  # the searches, called through the module (a test stands them in)
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
 
@@ -73,7 +74,8 @@ def _gain_entry(res, seeds: list[int], how: str) -> dict:
             "tuning_cost": round(res.cost, 4), "seeds": [seeds[0], seeds[-1]], "how": how}
 
 
-def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[float] | None = None) -> np.ndarray:
+def _pf_starts(task: Task, seeds: list[int], version: str = DEFAULT_VERSION,
+               pid: list[float] | None = None) -> np.ndarray:
     """Starting points of the PID + pressure-feedback search: a coarse grid over (KP, KI, KPL) with KD
     at its 300 V s/m limit, the LQR design of the task's centre plant, and (where given) the tuned PID
     `pid` (log10 KP, KI, KD) with the weakest pressure feedback, so the search never ends above the PID
@@ -101,7 +103,7 @@ def _pf_starts(task: Task, seeds: list[int], version: str = "v0", pid: list[floa
 
 
 def _tune_with_optuna(t: Task, seeds: dict, todo: list[str], storage: str, trials: int, say,
-                      version: str = "v0") -> dict[str, Any]:
+                      version: str = DEFAULT_VERSION) -> dict[str, Any]:
     """pid-nominal and pid-robust (those in `todo`) tuned by Optuna studies in `storage`."""
 
     out: dict[str, Any] = {}
@@ -275,7 +277,7 @@ SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 @takes_task("task", "from_task")
 def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str | Task | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
-              progress: bool = True, version: str = "v0", jobs: int = 1) -> dict[str, Any]:
+              progress: bool = True, version: str = DEFAULT_VERSION, jobs: int = 1) -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config). `jobs`: worker processes for the oracle tables'
@@ -320,7 +322,7 @@ def _area(t: Task) -> float:
     return float(t.configs["v0"].base_params.Ap)
 
 
-def _oracle_grid(t: Task, n: int, version: str = "v0"):
+def _oracle_grid(t: Task, n: int, version: str = DEFAULT_VERSION):
     """The oracle tables' grid: n x n over the (log c1, log Ct) ranges of the startup task's draw in the
     version, whatever the task: a table is a property of plants, and the `change` task's plants move
     over the whole range."""
@@ -336,7 +338,7 @@ def _table_entry(c1_grid, ct_grid, log_gains, costs, seeds, how: str) -> dict:
             "seeds": [seeds[0], seeds[-1]], "how": how}
 
 
-def _table(entry: dict, version: str = "v0"):
+def _table(entry: dict, version: str = DEFAULT_VERSION):
 
     source = shared_from(entry, "pid-oracle")
     if source is not None:

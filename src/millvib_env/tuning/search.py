@@ -29,6 +29,7 @@ from millvib_env.envs.batch import EpisodeBatch, env_id_for
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import Task
 from millvib_env.evaluation.evaluate import run_episodes
+from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable",
            "preview_costs", "tune_preview", "PREVIEW_TUNING_GAUGE"]
@@ -43,7 +44,7 @@ class ActionTable(Controller):
 
     name = "gain-table"
 
-    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None, version: str = "v0"):
+    def __init__(self, actions: np.ndarray, env_kwargs: dict | None = None, version: str = DEFAULT_VERSION):
         self.actions = np.asarray(actions, dtype=np.float32)
         self.env_kwargs = dict(env_kwargs or {})
         self.env_id = env_id_for("gain", version)
@@ -70,7 +71,7 @@ def gain_env_kwargs(task: Task, n_gains: int, params: dict | None = None) -> dic
 
 
 def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task,
-               params: dict | None = None, chunk: int = 4096, version: str = "v0") -> np.ndarray:
+               params: dict | None = None, chunk: int = 4096, version: str = DEFAULT_VERSION) -> np.ndarray:
     """Mean episode cost of each gain set (rows of log10 KP, KI, KD[, KPL[, KFF]]) over the plants `seeds`,
     in environment version `version`.
 
@@ -95,7 +96,7 @@ def mean_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task,
 
 
 def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: Task, params: dict | None = None,
-              refine_iters: int = 150, step_decades: float = 0.3, version: str = "v0",
+              refine_iters: int = 150, step_decades: float = 0.3, version: str = DEFAULT_VERSION,
               progress: str | None = None) -> "TuneResult":
     """The best of several starting gain sets (rows of log10 gains, 4 or 5 wide), refined by
     Nelder-Mead within `PF_BOUNDS` on the plants `seeds`."""
@@ -109,7 +110,7 @@ def tune_from(starts: np.ndarray, seeds: Sequence[int], *, task: Task, params: d
 
 def _refine(starts: np.ndarray, lo: np.ndarray, hi: np.ndarray, seeds: Sequence[int], *, task: Task,
             params: dict | None, refine_iters: int, step: float, xatol: float, fatol: float,
-            bounded: bool, version: str = "v0", progress: str | None = None) -> "TuneResult":
+            bounded: bool, version: str = DEFAULT_VERSION, progress: str | None = None) -> "TuneResult":
     """The cheapest of `starts` (rows of log10 gains, clipped to [lo, hi]) on the plants `seeds`, refined
     by Nelder-Mead; never worse than that start. `bounded`: Nelder-Mead within [lo, hi], its first
     simplex stepping inwards from a bound (KD at 300); otherwise the objective clips the gains.
@@ -171,7 +172,7 @@ class TuneResult:
 
 
 def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=GRID,
-         refine_iters: int = 60, version: str = "v0", progress: str | None = None) -> TuneResult:
+         refine_iters: int = 60, version: str = DEFAULT_VERSION, progress: str | None = None) -> TuneResult:
     """Grid search over `grid`, then Nelder-Mead from the best point, on the plants `seeds`."""
     gain_map = GainMap.from_config(task.configs["v0"])
     lo, hi = gain_map.log_lo, gain_map.log_hi
@@ -180,7 +181,7 @@ def tune(seeds: Sequence[int], *, task: Task, params: dict | None = None, grid=G
                    xatol=0.02, fatol=1e-3, bounded=False, version=version, progress=progress)
 
 
-def plants_of(seeds: Sequence[int], task: Task, version: str = "v0") -> list:
+def plants_of(seeds: Sequence[int], task: Task, version: str = DEFAULT_VERSION) -> list:
     """The plants (MillParams) the task's environment draws for episode seeds `seeds`."""
 
     batch = EpisodeBatch(env_id_for("gain", version), len(seeds), config=task.config)
@@ -189,7 +190,7 @@ def plants_of(seeds: Sequence[int], task: Task, version: str = "v0") -> list:
 
 
 def lqr_costs(weight_sets: Sequence, seeds: Sequence[int], *, task: Task, chunk: int = 4096,
-              version: str = "v0") -> np.ndarray:
+              version: str = DEFAULT_VERSION) -> np.ndarray:
     """Mean episode cost of the LQR reference with each of `weight_sets` (LQRWeights) over `seeds`.
 
     Each plant's gains are designed for its true c1 and Ct, as `lqr-oracle` does; a design that
@@ -229,7 +230,7 @@ LQR_GRID = {"q_v": (1e-4, 1e-3, 1e-2, 1e-1), "q_p": (1e-4, 1e-2, 1.0), "q_i": (1
             "r": (0.1, 1.0, 10.0, 100.0), "friction": ("stick", "sliding")}
 
 
-def tune_lqr(seeds: Sequence[int], *, task: Task, refine_iters: int = 40, version: str = "v0") -> dict:
+def tune_lqr(seeds: Sequence[int], *, task: Task, refine_iters: int = 40, version: str = DEFAULT_VERSION) -> dict:
     """Grid over `LQR_GRID`, then Nelder-Mead in log10 (q_v, q_p, q_i, r) with the best friction."""
 
     keys = ("q_v", "q_p", "q_i", "r")
@@ -267,7 +268,7 @@ ADAPTIVE_TAUS = (0.05, 0.1, 0.2, 0.5, 1.0)
 
 
 def tune_adaptive(seeds: Sequence[int], *, task: Task, taus: Sequence[float] = ADAPTIVE_TAUS, table=None,
-                  version: str = "v0") -> dict:
+                  version: str = DEFAULT_VERSION) -> dict:
     """The estimator's forgetting time constant with the lowest mean cost on `seeds` (gains from
     `table`, default the task's shipped pid-oracle table)."""
     cfg = task.configs[version]
@@ -304,7 +305,7 @@ def optuna_storage(storage: str):
 
 
 def tune_optuna(seeds: Sequence[int], *, task: Task, storage: str, study_name: str, n_trials: int,
-                params: dict | None = None, sampler_seed: int | None = None, version: str = "v0") -> dict:
+                params: dict | None = None, sampler_seed: int | None = None, version: str = DEFAULT_VERSION) -> dict:
     """PID gains by an Optuna study (TPE) over log10 KP, KI, KD in the action bounds, minimising the
     mean cost on `seeds`; several processes or machines running this with the same storage and
     study name share the study. Returns the study's best gains so far."""
