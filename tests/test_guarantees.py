@@ -620,6 +620,45 @@ def test_an_interrupted_solve_is_raised_not_answered(monkeypatch):
         mpc._solve_first_move(types.SimpleNamespace(_solver=ext), np.zeros(3))
 
 
+def _swallowed_ctrl_c():
+    """A Ctrl-C that a library's callback catches and drops (llvmlite's while numba compiles does)."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1.0)  # the handler runs here
+    except KeyboardInterrupt:
+        pass
+
+
+@pytest.mark.parametrize("where", ["a step", "the end"])
+def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_path, monkeypatch, capsys, where):
+    """Between the environment's steps (the run ends at the next step) or after the last one (the result's
+    commit refuses): exit 130 in one line, the previous result intact."""
+    import millvib_env.evaluation.benchmark as bench
+    from millvib_env.envs.batch import EpisodeBatch
+
+    out = tmp_path / "result.json"
+    out.write_text("old")
+    if where == "a step":
+        reset = EpisodeBatch.reset
+
+        def swallowing_reset(self, *a, **k):
+            _swallowed_ctrl_c()
+            return reset(self, *a, **k)
+        monkeypatch.setattr(EpisodeBatch, "reset", swallowing_reset)
+    else:
+        summarize = bench.summarize
+
+        def swallowing_summary(*a, **k):
+            _swallowed_ctrl_c()
+            return summarize(*a, **k)
+        monkeypatch.setattr(bench, "summarize", swallowing_summary)
+    status = cli_main(["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--json", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert status == 130 and err.strip() == "millvib benchmark: interrupted"
+    assert out.read_text() == "old"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the command's handler is gone after it
+
+
 def test_a_full_disk_is_a_failure_naming_the_file_and_the_old_result_stays(tmp_path, monkeypatch, capsys):
     """A file system that takes a write into its cache and finds no room when it writes it back (ENOSPC at
     fsync): `benchmark --json` exits 2 in one line that names the file, and the previous result is as it was."""

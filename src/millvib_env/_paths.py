@@ -11,6 +11,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Collection, Iterator
 
+from millvib_env import _interrupt
 from millvib_env._checks import shown_path
 
 _REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -58,6 +59,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        _interrupt.check()  # a signal a library swallowed while the file was made: it does not take the old's place
         _sync(tmp_path)
         os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
@@ -208,6 +210,7 @@ def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False,
             shutil.copytree(path, tmp, dirs_exist_ok=True)
             (tmp / _OWNER).write_text(str(os.getpid()))
         yield tmp
+        _interrupt.check()  # a signal a library swallowed while the folder was made: it does not replace `path`
         (tmp / _OWNER).unlink()
         if command is not None:
             entries = sorted(e.name for e in tmp.iterdir() if e.name != RESULT_MARKER)

@@ -9,6 +9,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+from millvib_env import _interrupt
+
 DESCRIPTION = """\
 millvib: vertical vibration of a rolling mill's hydraulic screw-down system.
 
@@ -526,23 +528,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, unwound as Ctrl-C is: the temporary result folders and worker processes are removed on the
-    way out, and the command says so in one line."""
-
-
-def _terminated(signum, frame):
-    raise Terminated
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run one `millvib` command; the exit status is returned, never raised (`millvib_cli` exits with it)."""
-    import signal
-
+    previous = _interrupt.install()  # SIGINT and SIGTERM recorded before they raise (`_interrupt`)
     try:
-        signal.signal(signal.SIGTERM, _terminated)
-    except ValueError:  # not the main thread (main() called from a worker)
-        pass
+        return _run(argv)
+    finally:
+        _interrupt.restore(previous)
+
+
+def _run(argv: list[str] | None) -> int:
     command = "millvib"
     try:
         parser = build_parser()
@@ -555,11 +550,13 @@ def main(argv: list[str] | None = None) -> int:
             from millvib_env.tasks import get_task
 
             args.task = get_task(args.task)
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        _interrupt.check()  # a signal a library swallowed: the command did not finish
+        return status
     except ValueError as err:
         print(f"{command}: error: {err}", file=sys.stderr)
         return 2
-    except Terminated:
+    except _interrupt.Terminated:
         print(f"{command}: terminated", file=sys.stderr)
         return 143
     except KeyboardInterrupt:

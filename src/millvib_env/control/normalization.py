@@ -75,10 +75,15 @@ def normalize_kwargs(value, where: str = "normalize") -> dict | None:
 
 
 def normalizes_obs(card_value, where: str = "normalize") -> bool:
-    """Whether a card's ``normalize`` (as `normalize_kwargs` reads it) normalises the observations. The text "{}"
-    of an early card means none."""
-    if isinstance(card_value, str) and card_value.strip() == "{}":
+    """Whether a card's ``normalize`` normalises the observations: the text `train` and `distill` write, "None"
+    (or an early card's "False", "" or "{}") for none, or VecNormalize's keywords as a dict's text; ValueError
+    naming `where` for anything else (a card is a record of what ran, not a form to interpret)."""
+    text = card_value.strip() if isinstance(card_value, str) else None
+    if text in ("None", "False", "", "{}"):
         return False
+    if text is None or not text.startswith(("{", "dict(")):
+        raise ValueError(f"{where} = {shown(card_value)} is invalid: 'None' or the VecNormalize arguments as train "
+                         "writes them (e.g. \"{'norm_obs': True, 'norm_reward': True}\")")
     kw = normalize_kwargs(card_value, where)
     return kw is not None and bool(kw.get("norm_obs", True))
 

@@ -21,6 +21,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
+from millvib_env import _interrupt
 from millvib_env._checks import as_float, shown
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
@@ -304,6 +305,7 @@ class MillVibCore:
 
     def step(self, actions: Any):
         """Advance every environment by one agent period. Returns obs, reward, terminated, truncated, infos."""
+        _interrupt.check()  # a Ctrl-C a library swallowed (numba's compiler, a solver) ends the run here
         if not self.started.all():
             raise ValueError("step() before reset(): call reset() to start an episode first")
         a = self.check_actions(actions)

@@ -258,7 +258,7 @@ def _write_agent(folder: Path, model, stats, card: dict) -> None:
 def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
           baseline=None, on=None) -> dict:
     suffix = "" if task == "startup" else f"-{task}"
-    name = f"dagger-residual-{'on-' + on if on else 'preview'}{suffix}"
+    name = f"dagger-on-{on}{suffix}" if on else f"dagger-residual-preview{suffix}"
     return {"name": name, **({"on": on} if on else {}), "algo": "ppo", "env_id": env_id, "task": task,
             "backend": "sb3", "env_kwargs": kwargs, "seed": seed, "normalize": "{'norm_obs': True}",
             "policy": "MlpPolicy (the actor of an SB3 PPO policy)",

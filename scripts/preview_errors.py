@@ -1,0 +1,79 @@
+"""Each preview reader's cost under the errors a gauge's preview has, one at a time and larger than the measured
+preview's, beside the reference (`pid-pf-robust`, which reads no preview) and the classical preview controller.
+
+    python scripts/preview_errors.py --task varied --controllers pid-pf-preview dagger-on-pid-pf-preview-varied
+
+Variants (`envs.gauge.GaugeSettings`): exact; measured (the benchmark's default: 1 ms RMS timing, 10 % force
+model, 10 kN noise); and each error alone at three times the measured size. The plants are the benchmark's
+held-out plants (`Task.heldout_plants`, benchmark seed 0, the first N); every controller meets the same ones.
+Writes docs/benchmark/v1/preview-errors/<task>.json (atomically) and prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from millvib_env._paths import write_text_atomic
+from millvib_env.control.factory import load_controller
+from millvib_env.control.information import from_env_kwargs
+from millvib_env.evaluation.evaluate import run_episodes
+from millvib_env.tasks import get_task
+
+MEASURED = {"transport_s": 0.1, "speed_error": 0.01, "force_model_error": 0.1, "noise_n": 1.0e4}
+VARIANTS = {
+    "exact": "exact",
+    "measured": "measured",
+    "timing x3 (3 ms RMS)": {**MEASURED, "speed_error": 0.03, "force_model_error": 0.0, "noise_n": 0.0},
+    "force model x3 (30 %)": {**MEASURED, "speed_error": 0.0, "force_model_error": 0.3, "noise_n": 0.0},
+    "noise x3 (30 kN)": {**MEASURED, "speed_error": 0.0, "force_model_error": 0.0, "noise_n": 3.0e4},
+    "all x3": {**MEASURED, "speed_error": 0.03, "force_model_error": 0.3, "noise_n": 3.0e4},
+}
+REFERENCE = "pid-pf-robust"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--task", required=True)
+    p.add_argument("--controllers", nargs="+", required=True, help="preview readers (the reference is added)")
+    p.add_argument("--plants", type=int, default=100)
+    p.add_argument("--out", default=None, help="default docs/benchmark/v1/preview-errors/<task>.json")
+    args = p.parse_args(argv)
+    t = get_task(args.task)
+    seeds = t.heldout_plants(args.plants, 0)
+    ref = np.array([r["cost"] for r in run_episodes(load_controller(REFERENCE, t), seeds, task=t)])
+    rows: dict = {REFERENCE: {"reads_preview": False, "cost_mean": float(ref.mean())}}
+    for name in args.controllers:
+        ctrl = load_controller(name, t)
+        if "gauge" not in from_env_kwargs(ctrl.env_kwargs):
+            sys.exit(f"--controllers: {name} reads no preview")
+        row: dict = {"reads_preview": True}
+        for label, gauge in VARIANTS.items():
+            cost = np.array([r["cost"] for r in run_episodes(
+                ctrl, seeds, task=t, env_kwargs={"observation": {"preview_gauge": gauge}})])
+            worse = cost / ref - 1.0
+            row[label] = {"cost_mean": float(cost.mean()), "vs_reference": float(cost.mean() / ref.mean() - 1.0),
+                          "plants_worse_than_reference_by_20pct": int(np.sum(worse > 0.2))}
+            print(f"{name:40s} {label:24s} {cost.mean():.4f} ({row[label]['vs_reference']:+.1%} vs reference)",
+                  file=sys.stderr)
+        rows[name] = row
+    out = Path(args.out or f"docs/benchmark/v1/preview-errors/{t.name}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, json.dumps({"task": t.name, "plants": [int(s) for s in seeds], "variants": VARIANTS,
+                                       "controllers": rows, "command": "python scripts/preview_errors.py "
+                                       + " ".join(argv if argv is not None else sys.argv[1:])}, indent=2))
+    print(f"| controller | {REFERENCE} | " + " | ".join(VARIANTS) + " |")
+    print("|---|---|" + "---|" * len(VARIANTS))
+    for name in args.controllers:
+        cells = [f"{rows[name][v]['cost_mean']:.3f} ({rows[name][v]['vs_reference']:+.1%})" for v in VARIANTS]
+        print(f"| {name} | {ref.mean():.3f} | " + " | ".join(cells) + " |")
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

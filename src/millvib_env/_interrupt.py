@@ -1,0 +1,59 @@
+"""A Ctrl-C or SIGTERM that a library cannot swallow.
+
+Python raises KeyboardInterrupt wherever the main thread is when the signal's handler runs. Inside a library's
+callback (llvmlite while numba compiles, a solver's C loop) the exception can be caught and dropped, and the run
+would go on to write its result. The `millvib` command installs `handler`, which records the signal before it
+raises, and the places that matter ask `check`: every environment step (so a run ends within a step, a few ms) and
+every result's commit (`_paths.atomic_path`, `atomic_folder`), so nothing is written after a signal, whichever
+library held it.
+"""
+
+from __future__ import annotations
+
+import signal
+
+__all__ = ["install", "restore", "check", "pending"]
+
+#: the signal received since `install` (0: none)
+_got = 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, unwound as Ctrl-C is (the command says 'terminated' and exits 143)."""
+
+
+def handler(signum, frame):
+    global _got
+    _got = signum
+    raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+
+
+def install() -> dict:
+    """Install `handler` for SIGINT and SIGTERM (main thread only); return the previous handlers for `restore`."""
+    global _got
+    _got = 0
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            previous[sig] = signal.signal(sig, handler)
+        except ValueError:  # not the main thread: the caller's own handling stays
+            pass
+    return previous
+
+
+def restore(previous: dict) -> None:
+    global _got
+    _got = 0
+    for sig, h in previous.items():
+        signal.signal(sig, h)
+
+
+def pending() -> int:
+    """The signal received and not yet acted on (0: none)."""
+    return _got
+
+
+def check() -> None:
+    """Raise the received signal's exception again (one that a library swallowed), or do nothing."""
+    if _got:
+        raise Terminated if _got == signal.SIGTERM else KeyboardInterrupt
