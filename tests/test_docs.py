@@ -210,3 +210,42 @@ def test_every_shipped_card_alone_rebuilds_its_agents_environment():
         (o1, i1), (o2, i2) = plain.reset(seed=seed), ours.reset(seed=seed)
         assert card["env_kwargs"]["config"] == ctrl.task.config, card_path
         assert np.array_equal(o1, o2) and i1["params"] == i2["params"], card_path
+
+
+def test_the_plain_sb3_recipe_gives_every_shipped_agents_benchmark_episode_from_outside_the_clone(tmp_path,
+                                                                                                    monkeypatch):
+    """agents/README.md's recipe (SB3's own loader, the card's id and keywords, the statistics file, nothing of ours
+    but the environment), run from a directory outside the clone for each shipped agent's lowest seed, gives the
+    episode `load_controller` gives in the benchmark's loop on a held-out plant of its task (the benchmark batches
+    the network's calls; its float32 sums may round differently, hence 1e-6)."""
+    import json
+
+    import gymnasium as gym
+    import numpy as np
+    from stable_baselines3 import PPO, SAC
+
+    import millvib_env  # noqa: F401 - registers the environments
+    from millvib_env.control import load_controller
+    from millvib_env.evaluation.evaluate import run_episodes
+
+    monkeypatch.chdir(tmp_path)
+    folders = [sorted(d.glob("seed-*"))[0] for d in sorted((ROOT / "agents").iterdir()) if d.is_dir()]
+    assert len(folders) >= 14
+    for folder in folders:
+        card = json.loads((folder / "card.json").read_text())
+        model = {"ppo": PPO, "sac": SAC}[card["algo"]].load(folder / "model.zip", device="cpu")
+        stats = np.load(folder / "vecnormalize.npz")
+        env = gym.make(card["env_id"], **card["env_kwargs"])
+        ctrl = load_controller(str(folder))
+        seed = ctrl.task.seeds["heldout"].start
+        obs, info = env.reset(seed=seed)
+        done = False
+        while not done:
+            norm = np.clip((obs - stats["mean"]) / np.sqrt(stats["var"] + stats["epsilon"]),
+                           -stats["clip_obs"], stats["clip_obs"]).astype(np.float32)
+            action, _ = model.predict(norm, deterministic=True)
+            obs, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+        rec = run_episodes(ctrl, [seed], task=ctrl.task)[0]
+        assert np.isclose(info["severity"], rec["severity_mm_s"], rtol=1e-6), folder
+        assert np.isclose(info["tracking_rms_um"], rec["tracking_rms_um"], rtol=1e-6), folder
