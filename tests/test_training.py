@@ -330,3 +330,30 @@ def test_a_task_configs_own_id_and_a_shipped_file_by_name_are_found_from_any_dir
     for algo in ("ppo", "sac", "recurrentppo"):
         generic = load_hyperparams(algo, "MillVib-GainSchedule-v1")
         assert load_hyperparams(algo, "MillVib-GainSchedule-Rolling-v1") == generic
+
+
+@pytest.mark.slow
+def test_init_from_starts_rl_at_a_distilled_student_and_refuses_another_network(tmp_path):
+    """`train --init-from`: the run's environment is the student's (its card's env_kwargs, the classical
+    feedforward included), its starting policy the student's network and statistics; the card says so."""
+    import torch
+
+    student = load_controller("dagger-on-pid-pf-preview-varied")
+    cfg = tmp_path / "ppo.yml"
+    body = ("MillVib-Valve-v1:\n  n_envs: 2\n  n_timesteps: 128\n  policy: MlpPolicy\n  normalize: true\n"
+            "  n_steps: 64\n  batch_size: 64\n  n_epochs: 1\n  learning_rate: 0.0\n"
+            "  policy_kwargs: \"dict(log_std_init=-3.0, net_arch=dict(pi=[256, 256], vf=[64, 64]))\"\n")
+    cfg.write_text(body)
+    card = train("ppo", "MillVib-Valve-v1", task="varied", seed=0, config=str(cfg), log_dir=str(tmp_path / "runs"),
+                 eval_freq=10_000, n_eval_episodes=1, checkpoint_freq=10_000, progress=False,
+                 save_dir=str(tmp_path / "agent"), validation_episodes=1, init_from="dagger-on-pid-pf-preview-varied")
+    assert card["init_from"]["name"] == "dagger-on-pid-pf-preview-varied"
+    assert card["env_kwargs"] == student.env_kwargs and "residual_feedforward" in card["env_kwargs"]["actions"]
+    tuned = load_controller(str(tmp_path / "agent"))
+    for (k, a), b in zip(student.model.policy.state_dict().items(), tuned.model.policy.state_dict().values()):
+        if "value_net" not in k and "mlp_extractor.value_net" not in k:  # learning rate 0: the actor as it was
+            assert torch.equal(a, b), k
+    cfg.write_text(body.replace("pi=[256, 256]", "pi=[64]"))
+    with pytest.raises(ValueError, match="its network differs"):
+        train("ppo", "MillVib-Valve-v1", task="varied", seed=0, config=str(cfg), log_dir=str(tmp_path / "runs2"),
+              progress=False, init_from="dagger-on-pid-pf-preview-varied")

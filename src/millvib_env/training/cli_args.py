@@ -60,6 +60,10 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="ship the final policy (default), the best one on the fixed evaluation plants, the "
                         "starting policy included (best), or the best one once training started (trained: never "
                         "the untrained policy); --n-eval-episodes plants, the same every evaluation")
+    p.add_argument("--init-from", metavar="AGENT", default=None,
+                   help="start from this PPO agent (a shipped name or a folder, e.g. a `millvib distill` student): "
+                        "its environment, network weights and observation statistics; RL then fine-tunes it "
+                        "(configs/agents/on-preview/ppo.yml)")
     p.add_argument("--backend", choices=["auto", "sb3", "sbx"], default="auto",
                    help="learner library: sb3 (Stable-Baselines3, PyTorch) or sbx (its JAX port, PPO and SAC, same "
                         "hyperparameter files; pip install -e '.[sbx]'); auto (default): sbx for SAC where it is "

@@ -22,7 +22,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -259,7 +259,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
           progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last",
-          backend: str = "auto", validation_episodes: int = N_VALIDATION) -> dict:
+          backend: str = "auto", validation_episodes: int = N_VALIDATION, init_from: str | None = None) -> dict:
     """Train one agent; returns its model card (also written to the run folder).
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
@@ -271,7 +271,12 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
     card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX. The card's
     validation scores the agent on the first `validation_episodes` of the task's validation plants (default 40,
-    the shipped agents' figure; fewer for a quick trial, whose card then says so)."""
+    the shipped agents' figure; fewer for a quick trial, whose card then says so).
+
+    `init_from`: an agent folder (a PPO, e.g. a `millvib distill` student) to start from: its environment (the
+    card's env_kwargs, in place of the file's), its network's weights (the file's policy_kwargs must build the same
+    network) and its observation statistics; reinforcement learning then fine-tunes it on the task's training
+    plants."""
     if select not in ("last", "best", "trained"):
         raise ValueError(f"--select {shown(select)} is invalid: 'last', 'best' or 'trained'")
     import torch
@@ -296,6 +301,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     policy = hp.pop("policy")
     normalize = hp.pop("normalize", None)
     env_kwargs = _agent_env_kwargs(hp.pop("env_kwargs", None), the_task, env_version(env_id))
+    source, env_kwargs = _init_source(init_from, resume, algo, env_id, the_task, env_kwargs)
     torch.set_num_threads(1)  # small networks: threads cost more than they give
 
     run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
@@ -313,6 +319,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     else:
         model, venv = _fresh_model(cls, policy, venv, seed, run, hp, norm_kwargs, env_id, env_kwargs,
                                    f"{algo} on {env_id} ({config or 'the default file'})")
+        _start_from(model, venv, source)
         done_steps = 0
     if backend == "sbx":
         jit_noise_key_split(model)
@@ -354,6 +361,9 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
                                                                        "the starting policy not among them")}
     if note:
         card["note"] = note
+    card.update({"init_from": {"agent": str(init_from), "name": source.name, "seed": source.seed,
+                               "trained_by": source.card.get("trained_by", source.card.get("command"))}}
+                if source is not None else {})  # the card says what it started from
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if progress:  # a few seconds with no bar: say what they are
         first = the_task.seeds["validation"].start
@@ -366,6 +376,48 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     venv.close()
     eval_env.close()
     return card
+
+
+def _init_source(init_from: str | None, resume: bool, algo: str, env_id: str, task: Task, env_kwargs: dict):
+    """The agent `--init-from` names, checked against the run (a PPO of the same id and task), and the env_kwargs the
+    run then trains with (the agent's); (None, `env_kwargs`) without one."""
+    from millvib_env.control.factory import load_controller
+
+    if init_from is None:
+        return None, env_kwargs
+    if resume:
+        raise ValueError("--init-from and --resume are both given: a run resumes from its own checkpoints")
+    source: Any = load_controller(init_from, task)
+    if not hasattr(source, "card") or source.algo != "ppo" or algo != "ppo":
+        raise ValueError(f"--init-from {shown(init_from)} is invalid here: a PPO agent folder, to fine-tune with "
+                         f"--algo ppo (this run: --algo {algo})")
+    if source.env_id != env_id:
+        raise ValueError(f"--init-from {shown(init_from)} runs {source.env_id}, not --env {env_id}")
+    return source, dict(source.env_kwargs)
+
+
+def _start_from(model, venv, source) -> None:
+    """`model` with `source`'s network weights, `venv` with its observation statistics (their count too, so
+    the running statistics move as slowly as that many samples make them); nothing where `source` is None."""
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if source is None:
+        return
+    want = source.model.policy.state_dict()
+    have = model.policy.state_dict()
+    if {k: tuple(v.shape) for k, v in want.items()} != {k: tuple(v.shape) for k, v in have.items()}:
+        raise ValueError(f"--init-from {source.name}: its network differs from the one the hyperparameter file's "
+                         "policy_kwargs build (net_arch and log_std_init must be the agent's)")
+    with torch.no_grad():
+        model.policy.load_state_dict(want)
+    stats = source.obs_stats
+    if stats is not None:
+        if not isinstance(venv, VecNormalize):
+            raise ValueError(f"--init-from {source.name} normalises its observations: the hyperparameter file needs "
+                             "normalize")
+        rms: Any = venv.obs_rms
+        rms.mean, rms.var, rms.count = stats.mean.copy(), stats.var.copy(), float(stats.count)
 
 
 def _new_model(cls, policy, venv, seed: int, run: Path, hp: dict, what: str):
@@ -475,7 +527,7 @@ def train_from_cli(args) -> int:
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
                   command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select,
-                  backend=args.backend, validation_episodes=args.validation_episodes)
+                  backend=args.backend, validation_episodes=args.validation_episodes, init_from=args.init_from)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
