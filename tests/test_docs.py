@@ -129,8 +129,9 @@ def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_p
 
 
 def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_are_the_same_modules():
-    """docs/architecture.md's upper floors: evaluation/ imports neither training/ nor tuning/, and those two never
-    import each other (each uses evaluation); `millvib_env.training.benchmark` and the other earlier names are the
+    """docs/architecture.md's floors: evaluation/ imports neither training/ nor tuning/, and those two never
+    import each other (each uses evaluation); control/ imports none of the three, envs/ nothing of control/ either,
+    plant/ nothing above it; `millvib_env.training.benchmark` and the other earlier names are the
     moved modules themselves (one object: a monkeypatch through either name is seen through both)."""
     import ast
     import importlib
@@ -141,8 +142,10 @@ def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_ar
     root = Path(millvib_env.__file__).parent
     shims = {"benchmark": "evaluation.benchmark", "evaluate": "evaluation.evaluate", "stats": "evaluation.stats",
              "sweep": "evaluation.sweep", "tuning": "tuning.search", "tune_task": "tuning.baselines"}
+    upper = ("millvib_env.evaluation", "millvib_env.training", "millvib_env.tuning")
     forbidden = {"evaluation": ("millvib_env.training", "millvib_env.tuning"), "tuning": ("millvib_env.training",),
-                 "training": ("millvib_env.tuning",)}
+                 "training": ("millvib_env.tuning",), "control": upper, "envs": upper + ("millvib_env.control",),
+                 "plant": upper + ("millvib_env.control", "millvib_env.envs")}
     for folder, banned in forbidden.items():
         for path in (root / folder).glob("*.py"):
             if folder == "training" and path.stem in shims:

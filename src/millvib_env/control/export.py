@@ -32,7 +32,6 @@ from millvib_env.control.factory import load_controller
 from millvib_env.control.registry import baseline_names
 from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import EpisodeBatch
-from millvib_env.evaluation.evaluate import env_kwargs_for
 
 __all__ = ["export_agent", "ONNX_OPSET", "EXPORT_TOLERANCE"]
 
@@ -92,7 +91,7 @@ def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
     """The observations of the agent's own first `steps` steps on its task's first validation plant."""
 
     t = agent.task
-    venv = EpisodeBatch(agent.env_id, 1, **env_kwargs_for(agent, t, None))
+    venv = EpisodeBatch(agent.env_id, 1, **agent.env_kwargs_for(t))
     obs = venv.reset([t.seeds["validation"].start])
     seen = []
     for _ in range(steps):
