@@ -659,21 +659,35 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the command's handler is gone after it
 
 
-def test_a_full_disk_is_a_failure_naming_the_file_and_the_old_result_stays(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("args, name", [
+    (["benchmark", "--task", "rolling", "--controllers", "pid-paper", "--episodes", "2", "--quiet", "--json"],
+     "b.json"),
+    (["simulate", "--t-end", "0.2", "--csv"], "run.csv"),
+    (["simulate", "--t-end", "0.2", "--plot"], "run.png"),
+    (["benchmark", "--task", "rolling", "--controllers", "pid-paper", "--episodes", "2", "--quiet", "--no-figures",
+      "--out"], "results"),
+])
+def test_a_full_disk_is_a_failure_naming_the_file_and_the_old_result_stays(tmp_path, monkeypatch, capsys, args, name):
     """A file system that takes a write into its cache and finds no room when it writes it back (ENOSPC at
-    fsync): `benchmark --json` exits 2 in one line that names the file, and the previous result is as it was."""
+    fsync), on every kind of output (a JSON, a CSV, a figure, a result folder; a config is written the same way,
+`_paths.atomic_path`): exit 2 in one line that
+    names what the user asked for, and the previous result is as it was, with nothing left beside it."""
     import errno
 
-    old = tmp_path / "b.json"
-    old.write_text("the previous result")
+    old = tmp_path / name
+    if "." in name:
+        old.write_text("the previous result")
+    else:  # a folder: the command's own previous result
+        assert cli_main(args + [str(old)]) == 0
+        capsys.readouterr()
+    before = old.read_bytes() if old.is_file() else (old / "benchmark.json").read_bytes()
 
     def full(fd):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(os, "fsync", full)
-    rc = cli_main(["benchmark", "--task", "rolling", "--controllers", "pid-paper", "--episodes", "2", "--quiet",
-                   "--json", str(old)])
+    rc = cli_main(args + [str(old)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "No space left on device" in err[0] and str(old) in err[0], err
-    assert old.read_text() == "the previous result"
-    assert [p.name for p in tmp_path.iterdir()] == ["b.json"]  # no temporary file left beside it
+    assert (old.read_bytes() if old.is_file() else (old / "benchmark.json").read_bytes()) == before
+    assert [p.name for p in tmp_path.iterdir()] == [name]  # no temporary file left beside it

@@ -209,7 +209,13 @@ def atomic_folder(path: str | os.PathLike, *, keep_existing: bool = False,
         if keep_existing and path.is_dir():
             shutil.copytree(path, tmp, dirs_exist_ok=True)
             (tmp / _OWNER).write_text(str(os.getpid()))
-        yield tmp
+        try:
+            yield tmp
+        except OSError as err:  # a full disk inside the folder: the line names the file in the folder asked for
+            if err.filename and Path(err.filename).is_relative_to(tmp):
+                raise OSError(err.errno, err.strerror or str(err),
+                              str(path / Path(err.filename).relative_to(tmp))) from None
+            raise
         _interrupt.check()  # a signal a library swallowed while the folder was made: it does not replace `path`
         (tmp / _OWNER).unlink()
         if command is not None:
