@@ -295,6 +295,31 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path, caps
     assert np.isfinite(rec["cost"]) and not rec["diverged"]
 
 
+@pytest.mark.slow
+def test_distill_on_the_classical_preview_controller_learns_what_it_misses_from_its_command(tmp_path, monkeypatch):
+    """`distill --on pid-pf-preview`: the student's environment runs pid-pf-preview's feedforward (its card holds the
+    numbers), and each label is what the teacher adds to the PID's and the feedforward's command, from the same
+    sample, within +-range_v."""
+    import millvib_env.training.distill as dist
+
+    seen = {}
+    fit = dist._fit
+
+    def spy(model, X, Y, stats, epochs, seed):
+        seen["Y"] = Y
+        return fit(model, X, Y, stats, epochs, seed)
+    monkeypatch.setattr(dist, "_fit", spy)
+    card = dist.distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False,
+                        validation_episodes=1, on="pid-pf-preview", range_v=10.0)
+    ff = load_controller("pid-pf-preview", "startup", version="v1")
+    assert card["on"] == "pid-pf-preview" and card["name"] == "agent"
+    assert card["env_kwargs"]["actions"]["residual_feedforward"] == ff.feedforward_gains()
+    assert card["env_kwargs"]["actions"]["residual_range_v"] == 10.0
+    assert np.all(np.abs(seen["Y"]) <= 1.0) and np.any(np.abs(seen["Y"]) < 1.0)
+    with pytest.raises(ValueError, match="on = 'pid-pf-robust' is invalid"):
+        dist.distill("startup", iterations=1, episodes=1, save_dir=tmp_path / "b", progress=False, on="pid-pf-robust")
+
+
 def test_a_new_episode_starts_the_oracle_afresh():
     """In a plain loop, the second episode of one controller equals a fresh controller's on the same seed: no
     model, integral or residual of the first plant is carried over."""
