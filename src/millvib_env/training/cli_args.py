@@ -64,6 +64,9 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="start from this PPO agent (a shipped name or a folder, e.g. a `millvib distill` student): "
                         "its environment, network weights and observation statistics; RL then fine-tunes it "
                         "(configs/agents/on-preview/ppo.yml)")
+    p.add_argument("--critic-warmup", type=int, default=0, metavar="STEPS",
+                   help="with --init-from: the first STEPS train the critic alone, the actor held as it started "
+                        "(default 0)")
     p.add_argument("--backend", choices=["auto", "sb3", "sbx"], default="auto",
                    help="learner library: sb3 (Stable-Baselines3, PyTorch) or sbx (its JAX port, PPO and SAC, same "
                         "hyperparameter files; pip install -e '.[sbx]'); auto (default): sbx for SAC where it is "

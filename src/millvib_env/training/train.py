@@ -259,7 +259,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
           config: str | None = None, log_dir: str = "runs", save_dir: str | None = None, resume: bool = False,
           eval_freq: int = 10_000, n_eval_episodes: int = 8, checkpoint_freq: int = 20_000,
           progress: bool = True, command: str | None = None, note: str | None = None, select: str = "last",
-          backend: str = "auto", validation_episodes: int = N_VALIDATION, init_from: str | None = None) -> dict:
+          backend: str = "auto", validation_episodes: int = N_VALIDATION, init_from: str | None = None,
+          critic_warmup: int = 0) -> dict:
     """Train one agent; returns its model card (also written to the run folder).
 
     Every evaluation runs the same `n_eval_episodes` plants (the run's evaluation seeds, reseeded each
@@ -276,7 +277,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     `init_from`: an agent folder (a PPO, e.g. a `millvib distill` student) to start from: its environment (the
     card's env_kwargs, in place of the file's), its network's weights (the file's policy_kwargs must build the same
     network) and its observation statistics; reinforcement learning then fine-tunes it on the task's training
-    plants."""
+    plants. `critic_warmup`: the first steps train the critic alone, the actor held as it started (a distilled
+    student's critic was never trained, and advantages from it would move the actor at random)."""
     if select not in ("last", "best", "trained"):
         raise ValueError(f"--select {shown(select)} is invalid: 'last', 'best' or 'trained'")
     import torch
@@ -335,7 +337,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     elif select == "best":
         eval_cb.evaluate_start(model)
     callbacks = CallbackList([
-        CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True), eval_cb])
+        CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True), eval_cb,
+        *_warmup(critic_warmup, algo)])
     start = time.time()
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
                 reset_num_timesteps=not resume, tb_log_name=algo)
@@ -362,7 +365,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     if note:
         card["note"] = note
     card.update({"init_from": {"agent": str(init_from), "name": source.name, "seed": source.seed,
-                               "trained_by": source.card.get("trained_by", source.card.get("command"))}}
+                               "trained_by": source.card.get("trained_by", source.card.get("command")),
+                               "critic_warmup_steps": int(critic_warmup)}}
                 if source is not None else {})  # the card says what it started from
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if progress:  # a few seconds with no bar: say what they are
@@ -376,6 +380,36 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     venv.close()
     eval_env.close()
     return card
+
+
+def _warmup(steps: int, algo: str) -> list:
+    """The callback that holds a PPO's actor (its layers and log std) while the first `steps` train the critic."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    steps = integer("--critic-warmup", steps, lo=0, hi=10**9)
+    if steps == 0:
+        return []
+    if algo != "ppo":
+        raise ValueError(f"--critic-warmup {steps} is for PPO (--init-from a student), not {algo}")
+
+    class ActorHeld(BaseCallback):
+        def _actor(self):
+            p = self.model.policy
+            return [*p.mlp_extractor.policy_net.parameters(), *p.action_net.parameters(), p.log_std]
+
+        def _on_training_start(self) -> None:
+            for t in self._actor():
+                t.requires_grad_(False)
+
+        def _on_rollout_end(self) -> None:
+            if self.model.num_timesteps >= steps:
+                for t in self._actor():
+                    t.requires_grad_(True)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return [ActorHeld()]
 
 
 def _init_source(init_from: str | None, resume: bool, algo: str, env_id: str, task: Task, env_kwargs: dict):
@@ -527,7 +561,8 @@ def train_from_cli(args) -> int:
                   log_dir=args.log_dir, resume=args.resume, eval_freq=args.eval_freq,
                   n_eval_episodes=args.n_eval_episodes, checkpoint_freq=args.checkpoint_freq,
                   command="millvib " + " ".join(sys.argv[1:]), note=args.note, select=args.select,
-                  backend=args.backend, validation_episodes=args.validation_episodes, init_from=args.init_from)
+                  backend=args.backend, validation_episodes=args.validation_episodes, init_from=args.init_from,
+                  critic_warmup=args.critic_warmup)
     if args.seeds:
         cards = train_seeds(args.seeds, jobs=args.jobs, save_dir=args.save_dir, ray=args.ray, **common)
         print(json.dumps(cards, indent=2))
