@@ -1,0 +1,66 @@
+"""The README's headline table: per task, the room above the classical controller of each information set and
+what the best learned controller of that set takes of it, from each task's saved benchmark.
+
+    python scripts/learning_table.py      # after `millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T`
+
+Columns: the preview set's classical controller (`pid-pf-preview`) against the reference; the room above it
+(`(classical - bound) / classical`, mean and CVaR-20, paired 95 % intervals); the best learned row of that set
+(the cheapest on the mean) against it, on the mean, the CVaR-20 and severity, and the share of the room it takes
+(its mean gain over the room's mean); the `loop` set's learned rows (the RL gain schedulers) against theirs.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TASKS = ("startup", "rolling", "change", "varied")
+PREVIEW = "loop+force+schedule+gauge"
+
+
+def pct(x: float, ci=None) -> str:
+    s = f"{100 * x:+.1f} %"
+    return s + (f" [{100 * ci[0]:+.1f}, {100 * ci[1]:+.1f}]" if ci else "")
+
+
+def learned(result: dict, info: str) -> list[str]:
+    return [n for n, c in result["controllers"].items() if c.get("information") == info and "per_seed" in c]
+
+
+def main() -> int:
+    print("| task | `pid-pf-preview` vs `pid-pf-robust`, mean | room above it, mean / CVaR-20 | best learned of the "
+          "preview set | vs `pid-pf-preview`: mean / CVaR-20 / severity | share of the room (mean) | "
+          "`loop` set: RL gain schedulers vs its classical, mean |")
+    print("|---|---|---|---|---|---|---|")
+    for task in TASKS:
+        path = ROOT / "docs" / "benchmark" / "v1" / task / "benchmark.json"
+        r = json.loads(path.read_text())
+        c = r["controllers"]
+        pre = r["information"][PREVIEW]
+        vs_ref = c["pid-pf-preview"]["paired"]["pid-pf-robust"]
+        ref = pct(vs_ref["cost_diff_rel"], vs_ref["ci"])
+        room = f"{pct(pre['room_mean'], pre['room_mean_ci'])} / {pct(pre['room_cvar20'], pre['room_cvar20_ci'])}"
+        rows = learned(r, PREVIEW)
+        best = min(rows, key=lambda n: c[n]["cost_mean"]) if rows else None
+        if best:
+            s = c[best]["same_information"]
+            gain = f"{pct(s['cost']['cost_diff_rel'], s['cost']['ci'])} / " \
+                   f"{pct(s['cost']['cvar20_diff_rel'], s['cost']['cvar20_ci'])} / " \
+                   f"{pct(s['severity']['cost_diff_rel'], s['severity']['ci'])}" + \
+                   (", tracking flag" if s["tracking_flag"] else "")
+            taken = -s["cost"]["cost_diff_rel"] / pre["room_mean"]
+            share = f"{taken:.0%}" if taken > 0 else "none (dearer)"
+        else:
+            gain, share = "-", "-"
+        loop = []
+        for n in learned(r, "loop"):
+            s = c[n]["same_information"]
+            loop.append(f"{n} {pct(s['cost']['cost_diff_rel'], s['cost']['ci'])} ({s['classical']})")
+        print(f"| {task} | {ref} | {room} | {best or '-'} | {gain} | {share} | {'; '.join(loop) or '-'} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
