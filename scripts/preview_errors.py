@@ -4,8 +4,8 @@ preview's, beside the reference (`pid-pf-robust`, which reads no preview) and th
     python scripts/preview_errors.py --task varied --controllers pid-pf-preview dagger-on-pid-pf-preview-varied
 
 Variants (`envs.gauge.GaugeSettings`): exact; measured (the benchmark's default: 1 ms RMS timing, 10 % force
-model, 10 kN noise); and each error alone at three times the measured size. The plants are the benchmark's
-held-out plants (`Task.heldout_plants`, benchmark seed 0, the first N); every controller meets the same ones.
+model, 10 kN noise); each error alone at three times the measured size; all three at three times. The plants are
+N held-out plants (`Task.heldout_plants(N, 0)`); every controller meets the same ones.
 Writes docs/benchmark/v1/preview-errors/<task>.json (atomically) and prints a Markdown table.
 """
 

@@ -160,7 +160,7 @@ def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_ar
 
 #: where a task's name may become a `Task` (docs/architecture.md, "A task name enters once"): the CLI, the API's
 #: entry points (`takes_task`, and the default task), and the two files that name a task (a card, a shared entry)
-TASK_LOOKUPS = {("src/millvib_env/cli.py", "main"), ("src/millvib_env/tasks.py", "default_task"),
+TASK_LOOKUPS = {("src/millvib_env/cli.py", "_run"), ("src/millvib_env/tasks.py", "default_task"),
                 ("src/millvib_env/tasks.py", "entry"), ("src/millvib_env/control/agents.py", "card_task"),
                 ("src/millvib_env/control/tuned.py", "shared_from")}
 

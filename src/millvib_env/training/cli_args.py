@@ -61,7 +61,7 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                         "starting policy included (best), or the best one once training started (trained: never "
                         "the untrained policy); --n-eval-episodes plants, the same every evaluation")
     p.add_argument("--init-from", metavar="AGENT", default=None,
-                   help="start from this PPO agent (a shipped name or a folder, e.g. a `millvib distill` student): "
+                   help="start from this PPO agent (a shipped name or a folder, e.g. a student of millvib distill): "
                         "its environment, network weights and observation statistics; RL then fine-tunes it "
                         "(configs/agents/on-preview/ppo.yml)")
     p.add_argument("--critic-warmup", type=int, default=0, metavar="STEPS",

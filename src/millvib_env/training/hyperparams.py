@@ -17,6 +17,7 @@ from millvib_env._checks import shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.normalization import normalize_kwargs
+from millvib_env.envs.specs import ENV_SPECS
 
 __all__ = ["parse_zoo_value", "load_hyperparams", "shipped_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
 
@@ -85,8 +86,6 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
 
     path = shipped_hyperparams(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     table = load_yaml(path, "hyperparameter file") or {}
-    from millvib_env.envs.specs import ENV_SPECS
-
     spec = ENV_SPECS.get(env_id)
     if isinstance(table, dict) and env_id not in table and spec is not None and spec.config is not None \
             and spec.generic_id in table:

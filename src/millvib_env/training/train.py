@@ -28,6 +28,7 @@ import numpy as np
 
 from millvib_env._checks import integer, shown, shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
+from millvib_env.control.factory import load_controller
 from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
 from millvib_env.control.manifest import EVAL_CURVE
 from millvib_env.control.named import resolve_named_gains, resolve_named_gains_for
@@ -415,8 +416,6 @@ def _warmup(steps: int, algo: str) -> list:
 def _init_source(init_from: str | None, resume: bool, algo: str, env_id: str, task: Task, env_kwargs: dict):
     """The agent `--init-from` names, checked against the run (a PPO of the same id and task), and the env_kwargs the
     run then trains with (the agent's); (None, `env_kwargs`) without one."""
-    from millvib_env.control.factory import load_controller
-
     if init_from is None:
         return None, env_kwargs
     if resume:
