@@ -568,9 +568,9 @@ def _cpu_s(pid: int) -> float:
 
 @pytest.fixture(scope="module")
 def mpc_run_compiled():
-    """The run below once to its end, so that its kernels are in numba's cache (a fresh cache, as
-    `../shared/tools/other-machine` gives, would have the Ctrl-C land in LLVM's compilation instead, where
-    llvmlite's callbacks swallow it: a known limit, docs/guarantees.md)."""
+    """The run below once to its end, so that its kernels are in numba's cache and the Ctrl-C lands in the MPC's
+    solves, what the test is about (in a fresh cache, as `../shared/tools/other-machine` gives, it could land in
+    LLVM's compilation, whose callbacks swallow it; the next step raises it again, `millvib_env._interrupt`)."""
     subprocess.run([sys.executable, "-c", "import sys; from millvib_cli import main; sys.exit(main())", "benchmark",
                     *MPC_RUN], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True, timeout=900)
 
@@ -594,6 +594,46 @@ def test_ctrl_c_during_the_mpc_bounds_ends_the_benchmark_in_one_line_and_writes_
     err = proc.communicate(timeout=300)[1]
     assert proc.returncode == 130 and err.strip().splitlines() == ["millvib benchmark: interrupted"], err
     assert not out.exists()
+
+
+#: the long commands a Ctrl-C is sent into (each writes what `{out}` names; small, so the test stays short)
+LONG_COMMANDS = {
+    "tune": ["tune", "--task", "startup", "--only", "pid-nominal", "--quiet", "--out", "{out}/tuned.yaml"],
+    "distill": ["distill", "--task", "startup", "--iterations", "1", "--episodes", "2", "--epochs", "1",
+                "--validation-episodes", "2", "--quiet", "--save-dir", "{out}/agent"],
+    "train": ["train", "--algo", "ppo", "--task", "startup", "--n-timesteps", "20000", "--quiet",
+              "--log-dir", "{out}/runs", "--save-dir", "{out}/agent"],
+    "reproduce": ["reproduce", "--t-end", "0.3", "--resolution", "12", "--quiet", "--out", "{out}/paper"],
+}
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("command", sorted(LONG_COMMANDS))
+def test_ctrl_c_at_random_times_ends_every_long_command_in_one_line_and_writes_nothing(tmp_path, command):
+    """Ctrl-C at three random moments of a command's run (by its CPU time, whichever library holds the signal then:
+    numba, torch, SB3, the tuner, the worker pool): 130 within seconds, one line, nothing written."""
+    import random
+
+    rng = random.Random(f"ctrl-c {command}")  # the same moments on every run of the suite
+    interrupted = 0
+    for k in range(3):
+        out = tmp_path / f"run{k}"
+        out.mkdir()
+        args = [a.format(out=out) for a in LONG_COMMANDS[command]]
+        proc = _millvib(*args)
+        after = rng.uniform(1.0, 4.0)
+        try:
+            _wait_for(lambda: _cpu_s(proc.pid) >= after, proc, f"{after:.2f} CPU-s of the run")
+        except AssertionError:  # it ended first: nothing to interrupt this time
+            continue
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=60)[1]
+        assert proc.returncode == 130 and err.strip().splitlines() == [f"millvib {command}: interrupted"], err
+        written = [p for p in out.rglob("*") if p.is_file() and "runs" not in p.relative_to(out).parts]
+        assert not written, written  # the log folder of `train` (TensorBoard, checkpoints) is no result
+        interrupted += 1
+    assert interrupted >= 2
 
 
 def test_an_interrupted_solve_is_raised_not_answered(monkeypatch):
