@@ -692,11 +692,16 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_
             _swallowed_ctrl_c()
             return summarize(*a, **k)
         monkeypatch.setattr(bench, "summarize", swallowing_summary)
-    status = cli_main(["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--json", str(out), "--quiet"])
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as a terminal's foreground gets it
+    try:
+        status = cli_main(["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--json", str(out),
+                           "--quiet"])
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the command's handler is gone after it
+    finally:
+        signal.signal(signal.SIGINT, before)
     err = capsys.readouterr().err
     assert status == 130 and err.strip() == "millvib benchmark: interrupted"
     assert out.read_text() == "old"
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the command's handler is gone after it
 
 
 @pytest.mark.parametrize("args, name", [

@@ -29,12 +29,15 @@ def handler(signum, frame):
 
 
 def install() -> dict:
-    """Install `handler` for SIGINT and SIGTERM (main thread only); return the previous handlers for `restore`."""
+    """Install `handler` for SIGINT (unless it is ignored) and SIGTERM, in the main thread only; return the
+    previous handlers for `restore`."""
     global _got
     _got = 0
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
+            if sig == signal.SIGINT and signal.getsignal(sig) is signal.SIG_IGN:
+                continue  # a process started to ignore Ctrl-C (a shell's `cmd &`) keeps ignoring it
             previous[sig] = signal.signal(sig, handler)
         except ValueError:  # not the main thread: the caller's own handling stays
             pass
