@@ -669,20 +669,39 @@ def _swallowed_ctrl_c():
         pass
 
 
-@pytest.mark.parametrize("where", ["a step", "the end"])
+def _ctrl_c_in_a_callback():
+    """A Ctrl-C that arrives in a weakref's callback, which Python cannot raise: it drops it and would print it as an
+    "Exception ignored" traceback (as in the garbage collector's callbacks, or llvmlite's)."""
+    import weakref
+
+    class Thing:
+        pass
+
+    def callback(_):
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1.0)
+
+    thing = Thing()
+    ref = weakref.ref(thing, callback)
+    del thing
+    assert ref() is None
+
+
+@pytest.mark.parametrize("where", ["a step", "a callback", "the end"])
 def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_path, monkeypatch, capsys, where):
-    """Between the environment's steps (the run ends at the next step) or after the last one (the result's
-    commit refuses): exit 130 in one line, the previous result intact."""
+    """Between the environment's steps (the run ends at the next step), in a callback Python cannot raise from, or
+    after the last step (the result's commit refuses): exit 130 in one line, the previous result intact."""
     import millvib_env.evaluation.benchmark as bench
     from millvib_env.envs.batch import EpisodeBatch
 
     out = tmp_path / "result.json"
     out.write_text("old")
-    if where == "a step":
+    monkeypatch.setattr(sys, "unraisablehook", sys.__unraisablehook__)  # Python's own, which prints (pytest's does not)
+    if where in ("a step", "a callback"):
         reset = EpisodeBatch.reset
 
         def swallowing_reset(self, *a, **k):
-            _swallowed_ctrl_c()
+            (_swallowed_ctrl_c if where == "a step" else _ctrl_c_in_a_callback)()
             return reset(self, *a, **k)
         monkeypatch.setattr(EpisodeBatch, "reset", swallowing_reset)
     else:

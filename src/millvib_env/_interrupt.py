@@ -2,7 +2,9 @@
 
 Python raises KeyboardInterrupt wherever the main thread is when the signal's handler runs. Inside a library's
 callback (llvmlite while numba compiles, a solver's C loop) the exception can be caught and dropped, and the run
-would go on to write its result. The `millvib` command installs `handler`, which records the signal before it
+would go on to write its result (where Python drops it, in a weakref's or the garbage collector's callback, it
+prints the traceback as an "Exception ignored": the command's `sys.unraisablehook` leaves that out, since the
+signal is acted on anyway). The `millvib` command installs `handler`, which records the signal before it
 raises, and the places that matter ask `check`: every environment step (so a run ends within a step, a few ms) and
 every result's commit (`_paths.atomic_path`, `atomic_folder`), so nothing is written after a signal, whichever
 library held it.
@@ -11,6 +13,7 @@ library held it.
 from __future__ import annotations
 
 import signal
+import sys
 
 __all__ = ["install", "restore", "check", "pending"]
 
@@ -28,12 +31,24 @@ def handler(signum, frame):
     raise Terminated if signum == signal.SIGTERM else KeyboardInterrupt
 
 
+def _unraisable(previous):
+    """`sys.unraisablehook` that drops the interrupt a callback could not raise (a weakref's or a garbage
+    collector's callback, llvmlite's): the recorded signal ends the run at the next check, in one line. Anything
+    else goes to the previous hook."""
+    def hook(info):
+        if _got and isinstance(info.exc_value, KeyboardInterrupt):
+            return
+        previous(info)
+    return hook
+
+
 def install() -> dict:
     """Install `handler` for SIGINT (unless it is ignored) and SIGTERM, in the main thread only; return the
     previous handlers for `restore`."""
     global _got
     _got = 0
-    previous = {}
+    previous: dict = {"unraisablehook": sys.unraisablehook}
+    sys.unraisablehook = _unraisable(sys.unraisablehook)
     for sig in (signal.SIGINT, signal.SIGTERM):
         try:
             if sig == signal.SIGINT and signal.getsignal(sig) is signal.SIG_IGN:
@@ -47,8 +62,11 @@ def install() -> dict:
 def restore(previous: dict) -> None:
     global _got
     _got = 0
-    for sig, h in previous.items():
-        signal.signal(sig, h)
+    for key, h in previous.items():
+        if key == "unraisablehook":
+            sys.unraisablehook = h
+        else:
+            signal.signal(key, h)
 
 
 def pending() -> int:
