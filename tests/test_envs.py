@@ -11,6 +11,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import millvib_env
 from millvib_env.envs.scenarios import list_scenarios
+from millvib_env.envs.config import load_env_config
+from millvib_env.envs.specs import ENV_SPECS
 
 #: the valve envs' episodes cut to 0.2 s (200 steps of 1 ms on v0, 400 of 0.5 ms on v1), so that a case steps
 #: through two whole episodes and an auto-reset in a few hundred steps
@@ -38,20 +40,51 @@ def test_a_v0_id_says_that_v1_exists_and_v1_does_not():
         gym.make("MillVib-GainSchedule-v1")
 
 
+def _zero_action_episode(env):
+    """One episode of zero actions from plant seed 0: (its steps, the last terminated and truncated)."""
+    env.reset(seed=0)
+    action = np.zeros(env.action_space.shape)
+    steps, term, trunc = 0, False, False
+    while not (term or trunc):
+        _, _, term, trunc, _ = env.step(action)
+        steps += 1
+    return steps, term, trunc
+
+
 @pytest.mark.parametrize("env_id", ["MillVib-GainSchedule-v0", "MillVib-Valve-v0"])
 @pytest.mark.parametrize("config, seconds", [("startup", 0.5), ("rolling", 1.0)])
 def test_episodes_truncate_at_the_configs_length(env_id, config, seconds):
     env = gym.make(env_id, config=config)
-    assert gym.spec(env_id).max_episode_steps is None  # no registered TimeLimit: the env ends its episodes
+    assert gym.spec(env_id).max_episode_steps is None  # a generic id takes any config: the env ends its episodes
     period = 0.01 if "Gain" in env_id else 0.001
-    env.reset(seed=0)
-    action = np.zeros(env.action_space.shape)
-    steps, done = 0, False
-    while not done:
-        _, _, term, trunc, _ = env.step(action)
-        steps += 1
-        done = term or trunc
+    steps, term, trunc = _zero_action_episode(env)
     assert trunc and not term and steps == round(seconds / period)
+
+
+@pytest.mark.parametrize("env_id", [i for i, s in ENV_SPECS.items() if s.config is not None])
+def test_a_per_task_id_carries_its_episode_length(env_id):
+    spec = ENV_SPECS[env_id]
+    config = load_env_config(spec.config, version=spec.version)
+    period = config.decision_dt_s if spec.mode == "gain" else config.control_dt_s
+    assert gym.spec(env_id).max_episode_steps == round(config.episode_s / period)
+
+
+@pytest.mark.parametrize("env_id", ["MillVib-Valve-Rolling-v1", "MillVib-GainSchedule-Startup-v1"])
+def test_a_per_task_ids_timelimit_is_where_the_env_truncates(env_id):
+    env = gym.make(env_id)
+    assert isinstance(env, gym.wrappers.TimeLimit)
+    steps, term, trunc = _zero_action_episode(env)
+    assert trunc and not term and steps == gym.spec(env_id).max_episode_steps
+    assert env.unwrapped.core.k[0] == steps  # the environment's own truncation, not one the wrapper imposed
+
+
+@pytest.mark.parametrize("make", [lambda **kw: gym.make("MillVib-Valve-Rolling-v1", **kw),
+                                  lambda **kw: gym.make_vec("MillVib-Valve-Rolling-v1", 2,
+                                                            vectorization_mode="vector_entry_point", **kw)])
+def test_a_per_task_id_refuses_an_episode_its_timelimit_would_cut(make):
+    with pytest.raises(ValueError, match=r"episode_s = 2\.0 s gives 4000 steps, past max_episode_steps = 2000"):
+        make(episode_s=2.0)
+    make(episode_s=0.5)  # a shorter episode ends itself before the limit
 
 
 def rollout(env, seed, actions):
@@ -208,6 +241,28 @@ def test_render_rgb_array_gives_a_frame():
     frame = env.render()
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8 and frame.std() > 0
     env.close()
+
+
+def test_human_mode_paces_its_frames_to_render_fps(monkeypatch):
+    """On a clock the test sets: a frame that comes early waits until 1/render_fps after the last one; a late one
+    is shown at once (the shortest pause) and the next is due 1/render_fps after it."""
+    import matplotlib.pyplot as plt
+
+    from millvib_env.envs import rendering
+
+    clock, pauses = [100.0], []
+    monkeypatch.setattr(rendering.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(plt, "pause", lambda s: pauses.append(s) or clock.__setitem__(0, clock[0] + s))
+    env = gym.make("MillVib-GainSchedule-Rolling-v1", render_mode="human")
+    fps = env.metadata["render_fps"]
+    env.reset(seed=0)  # the first frame: shown at once
+    env.step(np.zeros(3))  # drawn at once after it: it waits a whole frame
+    clock[0] += 0.5  # late: shown at once
+    env.step(np.zeros(3))
+    assert pauses[0] == pytest.approx(1e-3) and pauses[1] == pytest.approx(1 / fps - 1e-3)
+    assert pauses[2] == pytest.approx(1e-3)
+    env.close()
+    plt.close("all")
 
 
 def test_record_video_wrapper_works(tmp_path):

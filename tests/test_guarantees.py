@@ -1,6 +1,8 @@
 """Result folders never lose a user's data: what is refused, what is replaced, what is cleaned up."""
 import json
 import os
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -598,6 +600,7 @@ def test_ctrl_c_during_the_mpc_bounds_ends_the_benchmark_in_one_line_and_writes_
 
 #: the long commands a Ctrl-C is sent into (each writes what `{out}` names; small, so the test stays short)
 LONG_COMMANDS = {
+    "benchmark": ["benchmark", *MPC_RUN, "--json", "{out}/b.json"],
     "tune": ["tune", "--task", "startup", "--only", "pid-nominal", "--quiet", "--out", "{out}/tuned.yaml"],
     "distill": ["distill", "--task", "startup", "--iterations", "1", "--episodes", "2", "--epochs", "1",
                 "--validation-episodes", "2", "--quiet", "--save-dir", "{out}/agent"],
@@ -605,19 +608,24 @@ LONG_COMMANDS = {
               "--log-dir", "{out}/runs", "--save-dir", "{out}/agent"],
     "reproduce": ["reproduce", "--t-end", "0.3", "--resolution", "12", "--quiet", "--out", "{out}/paper"],
 }
+#: moments per command: 3 in the suite; MILLVIB_CTRL_C_MOMENTS=20 for the soak (`pytest -m slow -s -k random_times`,
+#: which prints each command's latencies from the signal to the exit)
+CTRL_C_MOMENTS = int(os.environ.get("MILLVIB_CTRL_C_MOMENTS", "3"))
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("command", sorted(LONG_COMMANDS))
-def test_ctrl_c_at_random_times_ends_every_long_command_in_one_line_and_writes_nothing(tmp_path, command):
-    """Ctrl-C at three random moments of a command's run (by its CPU time, whichever library holds the signal then:
-    numba, torch, SB3, the tuner, the worker pool): 130 within seconds, one line, nothing written."""
+def test_ctrl_c_at_random_times_ends_every_long_command_in_one_line_and_writes_nothing(tmp_path, command, request):
+    """Ctrl-C at random moments of a command's run (by its CPU time, whichever library holds the signal then:
+    numba, torch, SB3, OSQP, the tuner, the worker pool): 130, one line, nothing written, no process left."""
     import random
 
+    if command == "benchmark":
+        request.getfixturevalue("mpc_run_compiled")  # the Ctrl-C lands in the MPC's solves, not in compilation
     rng = random.Random(f"ctrl-c {command}")  # the same moments on every run of the suite
-    interrupted = 0
-    for k in range(3):
+    interrupted, latencies = 0, []
+    for k in range(CTRL_C_MOMENTS):
         out = tmp_path / f"run{k}"
         out.mkdir()
         args = [a.format(out=out) for a in LONG_COMMANDS[command]]
@@ -627,13 +635,19 @@ def test_ctrl_c_at_random_times_ends_every_long_command_in_one_line_and_writes_n
             _wait_for(lambda: _cpu_s(proc.pid) >= after, proc, f"{after:.2f} CPU-s of the run")
         except AssertionError:  # it ended first: nothing to interrupt this time
             continue
+        family = _descendants(proc.pid)
+        sent = time.perf_counter()
         proc.send_signal(signal.SIGINT)
         err = proc.communicate(timeout=60)[1]
+        latencies.append(time.perf_counter() - sent)
         assert proc.returncode == 130 and err.strip().splitlines() == [f"millvib {command}: interrupted"], err
         written = [p for p in out.rglob("*") if p.is_file() and "runs" not in p.relative_to(out).parts]
         assert not written, written  # the log folder of `train` (TensorBoard, checkpoints) is no result
+        _assert_ended(family)
         interrupted += 1
-    assert interrupted >= 2
+    assert interrupted >= 2 * CTRL_C_MOMENTS // 3
+    print(f"\n{command}: {interrupted} of {CTRL_C_MOMENTS} moments interrupted; signal to exit "
+          f"{min(latencies):.2f}-{max(latencies):.2f} s")
 
 
 def test_an_interrupted_solve_is_raised_not_answered(monkeypatch):
@@ -755,3 +769,36 @@ def test_a_full_disk_is_a_failure_naming_the_file_and_the_old_result_stays(tmp_p
     assert rc == 2 and len(err) == 1 and "No space left on device" in err[0] and str(old) in err[0], err
     assert (old.read_bytes() if old.is_file() else (old / "benchmark.json").read_bytes()) == before
     assert [p.name for p in tmp_path.iterdir()] == [name]  # no temporary file left beside it
+
+
+def _readme_blocks(lang: str) -> list[str]:
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    return re.findall(rf"```{lang}\n(.*?)```", text, flags=re.S)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_the_readmes_commands_work_from_an_empty_directory(tmp_path):
+    """Every `millvib` line of the README's command blocks, run in turn from an empty directory outside the clone
+    (the installed package alone): each ends with 0, or is still at work after 15 CPU-s (its names, files and
+    shipped configs all found: a name it cannot find is exit 2 within a second or two), then ends in one line at
+    a Ctrl-C. The README's Python blocks run there too."""
+    lines = [ln.split("  #")[0].strip() for block in _readme_blocks("bash") for ln in block.splitlines()]
+    commands = [shlex.split(ln)[1:] for ln in lines if ln.startswith("millvib ")]
+    assert len(commands) >= 10
+    for args in commands:
+        proc = _millvib(*args, cwd=tmp_path)
+        try:
+            _wait_for(lambda: _cpu_s(proc.pid) >= 15.0, proc, "15 CPU-s")
+        except AssertionError:  # it ended first
+            err = proc.communicate(timeout=60)[1]
+            assert proc.returncode == 0, f"millvib {' '.join(args)}: {err}"
+            continue
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=60)[1]  # the progress bars (no --quiet), then the one line
+        assert proc.returncode == 130 and err.strip().splitlines()[-1] == f"millvib {args[0]}: interrupted", err
+        assert "Traceback" not in err
+    for code in _readme_blocks("python"):
+        run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=600)
+        assert run.returncode == 0, run.stderr

@@ -20,8 +20,10 @@ def _register_envs() -> None:
     """Register the ids of `envs.specs.ENV_SPECS`: two environments in two versions (v0: the paper's analog loop;
     v1: the loop as commissioned), each as a generic id and as one id per task config (MillVib-Valve-Rolling-v1)
     for clients that take an id string only; `gym.make_vec(..., vectorization_mode="vector_entry_point")` gets the
-    batched engine. The environments truncate their episodes themselves (after the config's episode_s), so no
-    TimeLimit is registered: one would cut a 1 s `rolling` episode at the 0.5 s `startup` length."""
+    batched engine. The environments truncate their episodes themselves (after the config's episode_s). A per-task
+    id carries its task's episode length as ``max_episode_steps`` (Gymnasium's TimeLimit at the step where the
+    environment truncates anyway); a generic id carries none, since one would cut a 1 s `rolling` episode at the
+    0.5 s `startup` length."""
     import gymnasium
 
     from millvib_env.envs.specs import ENV_SPECS
@@ -29,7 +31,7 @@ def _register_envs() -> None:
     for env_id, spec in ENV_SPECS.items():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=spec.entry_point, vector_entry_point=spec.vector_entry_point,
-                               kwargs=spec.kwargs)
+                               kwargs=spec.kwargs, max_episode_steps=spec.max_episode_steps)
 
 
 _register_envs()

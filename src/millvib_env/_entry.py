@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from millvib_env._checks import shown
 from millvib_env.control.named import resolve_named_gains
 from millvib_env.envs import environments, vector
 
@@ -18,15 +19,33 @@ def _resolved(kwargs: dict[str, Any]) -> dict[str, Any]:
     return resolve_named_gains(kwargs)
 
 
+def _within(env: Any, max_episode_steps: Any) -> Any:
+    """`env`, where its episode ends within `max_episode_steps` (a per-task id's registered length, or the one a
+    caller passed): an episode longer than that would be cut by Gymnasium's TimeLimit (or, in a vector env, not
+    at all), so it is refused in one line."""
+    if max_episode_steps is None:
+        return env
+    if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, int) or max_episode_steps < 1:
+        raise ValueError(f"max_episode_steps = {shown(max_episode_steps)} is invalid: a positive integer")
+    steps = env.unwrapped.core.max_steps if hasattr(env, "unwrapped") else env.core.max_steps
+    if steps > max_episode_steps:
+        config = env.unwrapped.config if hasattr(env, "unwrapped") else env.config
+        raise ValueError(f"episode_s = {config.episode_s} s gives {steps} steps, past max_episode_steps = "
+                         f"{max_episode_steps} (a per-task id's episode; Gymnasium's TimeLimit would cut it there): "
+                         "use the generic id (MillVib-Valve-v1, MillVib-GainSchedule-v1) with config= for another "
+                         "episode length, or a shorter episode_s")
+    return env
+
+
 def _entry(cls: type, vector_env: bool = False) -> Callable:
     make: Callable[..., Any]
     if vector_env:
-        def make_vector(num_envs: int = 1, **kwargs: Any):
-            return cls(num_envs, **_resolved(kwargs))
+        def make_vector(num_envs: int = 1, max_episode_steps: int | None = None, **kwargs: Any):
+            return _within(cls(num_envs, **_resolved(kwargs)), max_episode_steps)
         make = make_vector
     else:
-        def make_single(**kwargs: Any):
-            return cls(**_resolved(kwargs))
+        def make_single(max_episode_steps: int | None = None, **kwargs: Any):
+            return _within(cls(**_resolved(kwargs)), max_episode_steps)
         make = make_single
     make.__name__ = make.__qualname__ = cls.__name__
     make.__doc__ = cls.__doc__

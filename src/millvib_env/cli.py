@@ -473,7 +473,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "preview adds), instead of less the digital PID's own command (default: the PID's)")
     p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
     p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
-    p.add_argument("--episodes", type=int, default=25, help="training episodes per iteration (default 25)")
+    p.add_argument("--episodes", type=int, default=25,
+                   help="training episodes per iteration, 1-100 (default 25): the seed's 100 training plants in "
+                        "turn, visited again under the next students past the 100th")
     p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
     p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
                    help="each iteration's student is scored on the first N of the task's validation plants "
@@ -537,6 +539,15 @@ def main(argv: list[str] | None = None) -> int:
         _interrupt.restore(previous)
 
 
+def _close_bars() -> None:
+    """Close the progress bars a run left open (tqdm's instances), so the run's last line is printed below them,
+    not drawn over by a bar that is closed later."""
+    tqdm_module = sys.modules.get("tqdm")
+    if tqdm_module is not None:
+        for bar in list(getattr(tqdm_module.tqdm, "_instances", ())):
+            bar.close()
+
+
 def _run(argv: list[str] | None) -> int:
     command = "millvib"
     try:
@@ -554,16 +565,20 @@ def _run(argv: list[str] | None) -> int:
         _interrupt.check()  # a signal a library swallowed: the command did not finish
         return status
     except ValueError as err:
+        _close_bars()
         print(f"{command}: error: {err}", file=sys.stderr)
         return 2
     except _interrupt.Terminated:
+        _close_bars()
         print(f"{command}: terminated", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
+        _close_bars()
         print(f"{command}: interrupted", file=sys.stderr)
         return 130
     except OSError as err:  # a full disk, a read-only or forbidden folder met while writing: one line, 2
         where = f": {err.filename}" if err.filename else ""
+        _close_bars()
         print(f"{command}: error: {err.strerror or err}{where}", file=sys.stderr)
         return 2
 

@@ -291,6 +291,15 @@ class EnvConfig:
     def sample_rate_hz(self) -> float:
         return float(self.raw["sample_rate_hz"])
 
+    def agent_period_s(self, mode: str) -> float:
+        """The period of one environment step: the decision period for the gain schedule (`mode` "gain"), the
+        control period for the valve ("valve")."""
+        return self.decision_dt_s if mode == "gain" else self.control_dt_s
+
+    def episode_steps(self, mode: str) -> int:
+        """The steps of one whole episode in `mode` ("gain" or "valve"): the environment truncates after them."""
+        return int(round(self.episode_s / self.agent_period_s(mode)))
+
     # the typed sections, each built once per config (an EnvConfig is never changed after load_env_config)
     @cached_property
     def observation(self) -> ObservationSettings:

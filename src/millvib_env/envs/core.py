@@ -78,7 +78,7 @@ class MillVibCore:
         observe_params = seen.params if observe_params is None else observe_params
         observe_phase = seen.phase if observe_phase is None else observe_phase
         self.observe_force = seen.force
-        self.period_s = config.decision_dt_s if mode == "gain" else config.control_dt_s
+        self.period_s = config.agent_period_s(mode)
         #: the sampled loop (v1: a digital controller at the control rate, sensors in the loop), or None for
         #: the paper's analog loop inside the plant (v0)
         self.loop = config.loop
@@ -90,7 +90,7 @@ class MillVibCore:
         self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
         self.n_samp = self.n_sub * self.spp
         self.dt_sample = 1.0 / config.sample_rate_hz
-        self.max_steps = int(round(config.episode_s / self.period_s))
+        self.max_steps = config.episode_steps(mode)
         self.n_ctrl = self.max_steps * self.n_sub
         n_trace = self.max_steps * self.n_samp + 1
         need = 8 * self.n * (n_trace + 2 * self.n_ctrl + 2 * (self.n_samp + 1) * (NY + NAUX))

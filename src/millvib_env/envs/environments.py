@@ -74,7 +74,8 @@ class MillVibEnv(gym.Env):
             return None
         from millvib_env.envs.rendering import render_frame
 
-        frame, self._figure = render_frame(self.core, self._figure, human=self.render_mode == "human")
+        frame, self._figure = render_frame(self.core, self._figure, human=self.render_mode == "human",
+                                           fps=self.metadata["render_fps"])
         return frame if self.render_mode == "rgb_array" else None
 
     def close(self):
@@ -199,7 +200,10 @@ class GainScheduleEnv(MillVibEnv):
     env's seeded generator; the plant, the disturbances and the sensor noise each use their own
     child of the episode's ``SeedSequence``. ``render_mode="rgb_array"`` or ``"human"`` draws the recent
     displacement, velocity and gains (or valve command) with the severity so far; it works with
-    ``gymnasium.wrappers.RecordVideo``.
+    ``gymnasium.wrappers.RecordVideo``, whose video plays at ``metadata["render_fps"]`` (20) frames a second
+    whatever the drawing's speed. ``"human"`` shows at most 20 frames a second of wall time (an early frame waits
+    for its moment); a frame took 45-52 ms (median; 73 ms at most) on a 2-core machine with two trainings running
+    (``python scripts/render_bench.py``), so a loaded machine shows fewer: a late frame is shown at once, never queued.
 
     ### Your own disturbance
 

@@ -8,6 +8,7 @@ rescales the axes and redraws. A full rebuild with a layout pass per frame took 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -39,7 +40,11 @@ def _build(figure, mode: str) -> dict:
     return art
 
 
-def render_frame(core, figure=None, *, human: bool = False):
+def render_frame(core, figure=None, *, human: bool = False, fps: float | None = None):
+    """Draw the frame of `core`'s first environment. rgb_array: returns (the frame, the figure). human: shows it
+    and returns (None, the figure), paced to at most `fps` frames a second of wall time (Gymnasium's
+    ``render_fps``: a frame that comes early waits for its moment; one that comes late is shown at once, so a
+    machine that draws slower than `fps` shows fewer)."""
     import matplotlib
 
     if not human:
@@ -79,7 +84,10 @@ def render_frame(core, figure=None, *, human: bool = False):
     art["title"].set_text(f"t = {t_end * 1e3:.0f} ms   severity so far {sev:.3g} mm/s   "
                           f"c1 = {p.c1:.3g}, Ct = {p.Ct:.2g}")
     if human:
-        plt.pause(1e-3)
+        now = time.perf_counter()
+        due = getattr(figure, "_millvib_due", now)
+        plt.pause(max(1e-3, due - now))
+        figure._millvib_due = max(due, now) + (1.0 / fps if fps else 0.0)
         return None, figure
     canvas = figure.canvas if isinstance(figure.canvas, FigureCanvasAgg) else FigureCanvasAgg(figure)
     canvas.draw()

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from millvib_env.envs.config import ENV_VERSIONS
+from millvib_env.envs.config import ENV_VERSIONS, cached_env_config
 
 __all__ = ["EnvSpec", "ENV_SPECS", "MODES", "TASK_CONFIGS"]
 
@@ -40,10 +40,21 @@ class EnvSpec:
         return f"millvib_env._entry:{self.name}VectorEnv"
 
     @property
+    def max_episode_steps(self) -> int | None:
+        """The steps of the id's episode, for a per-task id (its config's episode_s over the step's period): Gymnasium
+        wraps its TimeLimit there, where the environment truncates anyway. None for a generic id, which takes any
+        config and episode length (a TimeLimit at one task's length would cut another's episodes): its
+        environments end their episodes themselves."""
+        if self.config is None:
+            return None
+        return cached_env_config(self.config, self.version).episode_steps(self.mode)
+
+    @property
     def kwargs(self) -> dict:
-        """The keyword arguments the id registers with."""
+        """The keyword arguments the id registers with (a per-task id's `max_episode_steps` too: its entry point
+        refuses settings whose episode would run past it)."""
         return {"env_version": self.version} if self.config is None else \
-            {"env_version": self.version, "config": self.config}
+            {"env_version": self.version, "config": self.config, "max_episode_steps": self.max_episode_steps}
 
     @property
     def generic_id(self) -> str:

@@ -21,7 +21,8 @@ teacher of "learning by cheating"):
 
 Each iteration's student is scored on the task's validation plants; the shipped one is the best of those
 scores, never iteration 0's reference. Every episode is a training plant of the training seed
-(`Task.train_env_seed`); the numbers of the run are in the card.
+(`Task.train_env_seed`: its 100 plants in turn; past them an iteration visits them again under its new student); the
+numbers of the run are in the card.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from millvib_env.control.normalization import ObsStats
 from millvib_env.control.preview import DEFAULT_PREVIEW, preview_env_kwargs
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.loop.kernel import K_UCTRL
-from millvib_env.tasks import Task, takes_task
+from millvib_env.tasks import TRAIN_SEED_STRIDE, Task, takes_task
 from millvib_env.training.train import N_VALIDATION, validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
@@ -158,10 +159,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     t = task
     seed = integer("seed", seed, lo=0, hi=49)
     iterations = integer("iterations", iterations, lo=1, hi=20)
-    episodes = integer("episodes", episodes, lo=1, hi=100)
-    if iterations * episodes > 100:
-        raise ValueError(f"iterations x episodes = {iterations * episodes} is invalid: a training seed has 100 "
-                         "training plants")
+    episodes = integer("episodes", episodes, lo=1, hi=TRAIN_SEED_STRIDE)
     epochs = integer("epochs", epochs, lo=1, hi=1000)
     validation_episodes = integer("validation_episodes", validation_episodes, lo=1, hi=len(t.seeds["validation"]))
     torch.manual_seed(seed)
@@ -203,7 +201,9 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
 
     work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
     for it in range(iterations):
-        seeds = list(range(first + it * episodes, first + (it + 1) * episodes))
+        # the seed's training plants in turn; past its 100, they come round again (the same plant and disturbances,
+        # the new student's states: DAgger's next visit)
+        seeds = [first + (it * episodes + j) % TRAIN_SEED_STRIDE for j in range(episodes)]
         X, Y = _rollout(student, teacher_ctrl, env_id, kwargs, t, seeds, stats, bar, baseline_ctrl)
         X_all.append(X)
         Y_all.append(Y)
