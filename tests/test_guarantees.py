@@ -701,21 +701,34 @@ def _ctrl_c_in_a_callback():
     assert ref() is None
 
 
-@pytest.mark.parametrize("where", ["a step", "a callback", "the end"])
+def _ctrl_c_as_a_librarys_error():
+    """A Ctrl-C that a library turns into an error of its own (numba, where the signal lands while a compiled
+    function unpickles its constants: 'returned a result with an exception set', a SystemError)."""
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1.0)  # the handler runs here
+    except KeyboardInterrupt as err:
+        raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set") from err
+
+
+@pytest.mark.parametrize("where", ["a step", "a callback", "a library's error", "the end"])
 def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_path, monkeypatch, capsys, where):
-    """Between the environment's steps (the run ends at the next step), in a callback Python cannot raise from, or
-    after the last step (the result's commit refuses): exit 130 in one line, the previous result intact."""
+    """Between the environment's steps (the run ends at the next step), in a callback Python cannot raise from, as
+    a library's own error, or after the last step (the result's commit refuses): exit 130 in one line, the previous
+    result intact."""
     import millvib_env.evaluation.benchmark as bench
     from millvib_env.envs.batch import EpisodeBatch
 
     out = tmp_path / "result.json"
     out.write_text("old")
     monkeypatch.setattr(sys, "unraisablehook", sys.__unraisablehook__)  # Python's own, which prints (pytest's does not)
-    if where in ("a step", "a callback"):
+    if where in ("a step", "a callback", "a library's error"):
         reset = EpisodeBatch.reset
+        how = {"a step": _swallowed_ctrl_c, "a callback": _ctrl_c_in_a_callback,
+               "a library's error": _ctrl_c_as_a_librarys_error}[where]
 
         def swallowing_reset(self, *a, **k):
-            (_swallowed_ctrl_c if where == "a step" else _ctrl_c_in_a_callback)()
+            how()
             return reset(self, *a, **k)
         monkeypatch.setattr(EpisodeBatch, "reset", swallowing_reset)
     else:

@@ -17,6 +17,7 @@ INTERRUPTED, TERMINATED = 130, 143  # 128 + SIGINT, 128 + SIGTERM: what a shell 
 
 
 def _leave(status: int) -> None:
+    _finished()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -63,10 +64,20 @@ def main() -> int:
         print(f"millvib: {'terminated' if got else 'interrupted'} while loading", file=sys.stderr)
         _leave(TERMINATED if got else INTERRUPTED)
     status = run()
+    _finished()  # a finished command ignores a late signal
     if status in (INTERRUPTED, TERMINATED):
         _leave(status)
     _skip_final_collection()
     return status
+
+
+def _finished() -> None:
+    """The command has ended and said so: a Ctrl-C or SIGTERM from now on is ignored, since its result is whole (or
+    its line is printed) and the exit takes milliseconds. Without this, one that arrived while the interpreter shut
+    down (its handlers reset to the default by then) killed the process without a word, exit -2, after a
+    successful run."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
 
 
 def _skip_final_collection() -> None:

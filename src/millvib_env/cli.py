@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import json
 import sys
 import textwrap
@@ -564,23 +565,33 @@ def _run(argv: list[str] | None) -> int:
         status = int(args.func(args) or 0)
         _interrupt.check()  # a signal a library swallowed: the command did not finish
         return status
-    except ValueError as err:
-        _close_bars()
-        print(f"{command}: error: {err}", file=sys.stderr)
-        return 2
     except _interrupt.Terminated:
+        return _signalled(command, signal.SIGTERM)
+    except KeyboardInterrupt:
+        return _signalled(command, signal.SIGINT)
+    except Exception as err:
+        if _interrupt.pending():  # a library turned the signal into its own error (numba: a SystemError)
+            return _signalled(command, _interrupt.pending())
         _close_bars()
+        if isinstance(err, ValueError):
+            print(f"{command}: error: {err}", file=sys.stderr)
+            return 2
+        if isinstance(err, OSError):  # a full disk, a read-only or forbidden folder met while writing: one line, 2
+            where = f": {err.filename}" if err.filename else ""
+            print(f"{command}: error: {err.strerror or err}{where}", file=sys.stderr)
+            return 2
+        raise
+
+
+def _signalled(command: str, signum: int) -> int:
+    """The one line and the status of a run that a signal ended (SIGTERM: 143, Ctrl-C: 130)."""
+    _close_bars()
+    if signum == signal.SIGTERM:
         print(f"{command}: terminated", file=sys.stderr)
         return 143
-    except KeyboardInterrupt:
-        _close_bars()
-        print(f"{command}: interrupted", file=sys.stderr)
-        return 130
-    except OSError as err:  # a full disk, a read-only or forbidden folder met while writing: one line, 2
-        where = f": {err.filename}" if err.filename else ""
-        _close_bars()
-        print(f"{command}: error: {err.strerror or err}{where}", file=sys.stderr)
-        return 2
+    print(f"{command}: interrupted", file=sys.stderr)
+    return 130
+
 
 if __name__ == "__main__":
     sys.exit(main())
