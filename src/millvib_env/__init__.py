@@ -30,8 +30,12 @@ def _register_envs() -> None:
 
     for env_id, spec in ENV_SPECS.items():
         if env_id not in gymnasium.registry:
+            try:
+                kwargs, steps = spec.kwargs, spec.max_episode_steps
+            except (ValueError, OSError):  # the task's config cannot be read: `gym.make` says why, the import works
+                kwargs, steps = {"env_version": spec.version, "config": spec.config}, None
             gymnasium.register(id=env_id, entry_point=spec.entry_point, vector_entry_point=spec.vector_entry_point,
-                               kwargs=spec.kwargs, max_episode_steps=spec.max_episode_steps)
+                               kwargs=kwargs, max_episode_steps=steps)
 
 
 _register_envs()
