@@ -305,9 +305,9 @@ def test_distill_on_the_classical_preview_controller_learns_what_it_misses_from_
     seen = {}
     fit = dist._fit
 
-    def spy(model, X, Y, stats, epochs, seed):
+    def spy(model, X, Y, stats, epochs, seed, **how):
         seen["Y"] = Y
-        return fit(model, X, Y, stats, epochs, seed)
+        return fit(model, X, Y, stats, epochs, seed, **how)
     monkeypatch.setattr(dist, "_fit", spy)
     card = dist.distill("startup", iterations=1, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False,
                         validation_episodes=1, on="pid-pf-preview", range_v=10.0)
@@ -318,6 +318,44 @@ def test_distill_on_the_classical_preview_controller_learns_what_it_misses_from_
     assert np.all(np.abs(seen["Y"]) <= 1.0) and np.any(np.abs(seen["Y"]) < 1.0)
     with pytest.raises(ValueError, match="on = 'pid-pf-robust' is invalid"):
         dist.distill("startup", iterations=1, episodes=1, save_dir=tmp_path / "b", progress=False, on="pid-pf-robust")
+
+
+def test_the_iteration_budget_draws_one_iterations_worth_per_epoch_and_every_pooled_sample_before_any_again():
+    """`distill(budget="iteration")`'s fit (`_fit` with per_epoch): an epoch is per_epoch samples in batches of at most
+    1024, and the draws run through whole shuffles of the pool, so no sample comes twice before each came once (a
+    shuffle's last batch is short rather than reach into the next).
+    Without per_epoch, an epoch is one pass over the pool (the `pool` budget)."""
+    import types
+
+    import torch
+
+    from millvib_env.control.normalization import ObsStats
+    from millvib_env.training.distill import _fit
+
+    seen = []
+
+    class Net(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.lin = torch.nn.Linear(1, 1)
+
+        def forward(self, x):
+            seen.append(x[:, 0].round().long().tolist())
+            return self.lin(x)
+    n = 2500
+    X = np.arange(n, dtype=np.float32)[:, None]
+    stats = ObsStats(np.zeros(1), np.ones(1), 1.0, 1e9, 0.0)  # normalisation that leaves the sample's index readable
+    policy = types.SimpleNamespace(mlp_extractor=types.SimpleNamespace(policy_net=Net()),
+                                   action_net=torch.nn.Identity())
+    model = types.SimpleNamespace(policy=policy)
+    _fit(model, X, np.zeros((n, 1), np.float32), stats, epochs=3, seed=0, per_epoch=1500)
+    batches = seen[:-1]  # the last call scores the whole pool
+    assert [len(b) for b in batches] == [1024, 476, 1000, 500, 1024, 476]  # 1500 an epoch; a shuffle ends at 2500
+    drawn = [i for b in batches for i in b]
+    assert sorted(drawn[:n]) == list(range(n)) and sorted(drawn[n:]) == sorted(set(drawn[n:]))
+    seen.clear()
+    _fit(model, X, np.zeros((n, 1), np.float32), stats, epochs=2, seed=0)
+    assert [len(b) for b in seen[:-1]] == [1024, 1024, 452] * 2
 
 
 def test_a_new_episode_starts_the_oracle_afresh():

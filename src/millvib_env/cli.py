@@ -265,7 +265,7 @@ def _cmd_distill(args) -> int:
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
                    loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]),
                    preview_gauge=args.preview, on=args.on,
-                   validation_episodes=args.validation_episodes)
+                   validation_episodes=args.validation_episodes, budget=args.budget)
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
         print(f"updated {write_manifest()}")
@@ -478,6 +478,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="training episodes per iteration, 1-100 (default 25): the seed's 100 training plants in "
                         "turn, visited again under the next students past the 100th")
     p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
+    p.add_argument("--budget", choices=("pool", "iteration"), default="iteration",
+                   help="an epoch's size: 'iteration', one iteration's worth of samples drawn from the pool (a "
+                        "constant cost per iteration; Adam's step 1e-3/sqrt(iteration); default), or 'pool', a pass "
+                        "over every pooled sample (the fit grows with each iteration; the students distilled before "
+                        "this option)")
     p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
                    help="each iteration's student is scored on the first N of the task's validation plants "
                         "(default 40, as the shipped agents')")
