@@ -252,3 +252,35 @@ def test_the_plain_sb3_recipe_gives_every_shipped_agents_benchmark_episode_from_
         rec = run_episodes(ctrl, [seed], task=ctrl.task)[0]
         assert np.isclose(info["severity"], rec["severity_mm_s"], rtol=1e-6), folder
         assert np.isclose(info["tracking_rms_um"], rec["tracking_rms_um"], rtol=1e-6), folder
+
+
+def test_every_millvib_command_and_flag_named_in_the_docs_exists():
+    """Docs that cannot drift: each `millvib COMMAND ...` in the README, docs/ and agents/README.md (in a code span
+    or a command block) names a command the CLI has, and each of its `--flags` is one that command takes."""
+    import argparse
+
+    from millvib_env.cli import build_parser
+
+    commands: dict[str, set[str]] = {}
+    for action in build_parser()._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                commands[name] = {o for a in sub._actions for o in a.option_strings}
+    files = [ROOT / "README.md", ROOT / "agents" / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    stale, seen = [], 0
+    for f in files:
+        text = f.read_text()
+        spans = re.findall(r"`(millvib [^`\n]+)`", text)
+        spans += [ln.strip() for ln in text.splitlines() if ln.strip().startswith("millvib ")]
+        for span in spans:
+            words = span.split("#")[0].split()
+            if len(words) < 2 or not re.fullmatch(r"[a-z][a-z-]*", words[1]):
+                continue  # `millvib` alone, or a placeholder (`millvib <command>`)
+            seen += 1
+            if words[1] not in commands:
+                stale.append(f"{f.relative_to(ROOT)}: {span!r}: no command {words[1]!r}")
+                continue
+            for flag in re.findall(r"(?<![\w-])(--[a-z][a-z0-9-]*)", " ".join(words[2:])):
+                if flag not in commands[words[1]]:
+                    stale.append(f"{f.relative_to(ROOT)}: {span!r}: {words[1]} has no {flag}")
+    assert seen > 20 and not stale, stale

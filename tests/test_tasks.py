@@ -238,3 +238,51 @@ def test_an_entry_point_refuses_a_call_that_does_not_fit_it_by_its_name():
         from millvib_env.tuning.baselines import tune_task
 
         tune_task(None)
+
+
+
+def _functions_with_a_version_default():
+    """(qualified name, default, docstring) of every function and method of the package whose `version`
+    parameter has a default."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    for info in pkgutil.walk_packages(millvib_env.__path__, "millvib_env."):
+        mod = importlib.import_module(info.name)
+        for name, obj in vars(mod).items():
+            if getattr(obj, "__module__", None) != mod.__name__:
+                continue
+            funcs = [(name, obj)] if inspect.isfunction(obj) else (
+                [(f"{name}.{k}", v) for k, v in vars(obj).items() if inspect.isfunction(v)] if inspect.isclass(obj)
+                else [])
+            for fname, func in funcs:
+                param = inspect.signature(func).parameters.get("version")
+                if param is not None and param.default is not inspect.Parameter.empty:
+                    yield f"{info.name}.{fname}", param.default, inspect.getdoc(func) or ""
+
+
+def _env_version_options():
+    """(command, default, choices) of every command's --env-version."""
+    import argparse
+
+    from millvib_env.cli import build_parser
+
+    for action in build_parser()._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from ((name, a.default, tuple(a.choices)) for a in sub._actions if a.dest == "env_version")
+
+
+def test_every_function_and_command_that_takes_an_env_version_defaults_to_the_default_version():
+    """One default for the env version: every function of the package with a `version` parameter defaults to
+    `DEFAULT_VERSION`, or to None where None means "every version" or "the config's own, else the default" (its
+    docstring says which); every command's `--env-version` defaults to it and offers exactly the versions there are."""
+    from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS
+
+    found = list(_functions_with_a_version_default())
+    wrong = [f"{name}: {default!r}" for name, default, doc in found
+             if not (default == DEFAULT_VERSION or (default is None and "version" in doc))]
+    assert len(found) > 10 and not wrong, wrong
+    options = list(_env_version_options())
+    assert len(options) >= 3 and all(d == DEFAULT_VERSION and c == ENV_VERSIONS for _, d, c in options), options

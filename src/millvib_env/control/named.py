@@ -92,7 +92,8 @@ def resolve_named_gains(env_kwargs: Mapping, task: str | Task | None = None, ver
 
 
 def resolve_named_gains_for(env_kwargs: Mapping, task: Task, version: str | None = None) -> dict:
-    """`resolve_named_gains` for a resolved `Task` (callers below the entry points)."""
+    """`resolve_named_gains` for a resolved `Task` (callers below the entry points); `version` defaults to
+    ``env_kwargs["env_version"]``, else `DEFAULT_VERSION`."""
     out = dict(env_kwargs)
     if not has_named_gains(out):
         return out
