@@ -1,10 +1,10 @@
-"""Copy each task's results from docs/benchmark/<version>/<task>/ into the README (headline table, v1 only)
-and into docs/benchmark.md (the full tables).
+"""Copy each task's results from docs/benchmark/<version>/<task>/ into docs/results.md (each task's compact table,
+v1 only) and into docs/benchmark.md (the full tables).
 
     millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T    # for each task, then
     python scripts/readme_results.py [startup rolling change] [--version v1]
 
-Fills the blocks between ``<!-- results: TASK -->`` and ``<!-- end results -->`` in README.md (a compact
+Fills the blocks between ``<!-- results: TASK -->`` and ``<!-- end results -->`` in docs/results.md (a compact
 table from benchmark.json, the loop as commissioned) and ``<!-- results: VERSION TASK -->`` in
 docs/benchmark.md (benchmark.md's main table, its actuator table, its seed-spread table and its note on the
 normalised score). The verdicts are prose: reread them against the tables.
@@ -53,7 +53,7 @@ def _pct(d: dict | None, key: str, ci: str) -> str:
 
 
 def headline_block(data: dict) -> list[str]:
-    """The README's table of a task: each controller's information set, its cost, against the reference and
+    """docs/results.md's table of a task: each controller's information set, its cost, against the reference and
     against the classical controller of its own information (cost and severity, paired), then each set's
     classical controller, bound and room."""
     ref = data["reference"]
@@ -97,12 +97,12 @@ def main() -> None:
     ap.add_argument("tasks", nargs="*", metavar="TASK",
                     help=f"tasks to copy ({', '.join(list_tasks())}; default all)")
     ap.add_argument("--version", default="v1", choices=["v0", "v1"],
-                    help="the results of which environment version (default v1; the README shows v1 only)")
+                    help="the results of which environment version (default v1; docs/results.md shows v1 only)")
     args = ap.parse_args()
     for task in args.tasks:
         if task not in list_tasks():
             ap.error(f"task {task!r} is not one of {', '.join(list_tasks())}")
-    readme, docs = ROOT / "README.md", ROOT / "docs" / "benchmark.md"
+    readme, docs = ROOT / "docs" / "results.md", ROOT / "docs" / "benchmark.md"
     r_text, d_text = readme.read_text(), docs.read_text()
     for task in args.tasks or list_tasks():
         folder = ROOT / "docs" / "benchmark" / args.version / task
@@ -111,10 +111,10 @@ def main() -> None:
                      f"--env-version {args.version} --all-seeds --out {folder.relative_to(ROOT)}` first")
         data = json.loads((folder / "benchmark.json").read_text())
         if args.version == "v1":
-            r_text = fill(r_text, task, headline_block(data), "README.md")
+            r_text = fill(r_text, task, headline_block(data), "docs/results.md")
         d_text = fill(d_text, f"{args.version} {task}", full_block((folder / "benchmark.md").read_text()),
                       "docs/benchmark.md")
-        print(f"{'README.md and ' if args.version == 'v1' else ''}docs/benchmark.md: {task} from "
+        print(f"{'docs/results.md and ' if args.version == 'v1' else ''}docs/benchmark.md: {task} from "
               f"{folder.relative_to(ROOT)}")
     write_text_atomic(readme, r_text)
     write_text_atomic(docs, d_text)
