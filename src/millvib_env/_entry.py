@@ -31,9 +31,9 @@ def _within(env: Any, max_episode_steps: Any) -> Any:
     if steps > max_episode_steps:
         config = env.unwrapped.config if hasattr(env, "unwrapped") else env.config
         raise ValueError(f"episode_s = {config.episode_s} s gives {steps} steps, past max_episode_steps = "
-                         f"{max_episode_steps} (a per-task id's episode; Gymnasium's TimeLimit would cut it there): "
-                         "use the generic id (MillVib-Valve-v1, MillVib-GainSchedule-v1) with config= for another "
-                         "episode length, or a shorter episode_s")
+                         f"{max_episode_steps} (Gymnasium's TimeLimit would cut the episode there): a shorter "
+                         "episode_s or a larger max_episode_steps (a per-task id registers its task's episode length; "
+                         "the generic ids, MillVib-Valve-v1 and MillVib-GainSchedule-v1, none)")
     return env
 
 
