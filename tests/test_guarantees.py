@@ -602,7 +602,7 @@ def test_ctrl_c_during_the_mpc_bounds_ends_the_benchmark_in_one_line_and_writes_
 LONG_COMMANDS = {
     "benchmark": ["benchmark", *MPC_RUN, "--json", "{out}/b.json"],
     "tune": ["tune", "--task", "startup", "--only", "pid-nominal", "--quiet", "--out", "{out}/tuned.yaml"],
-    "distill": ["distill", "--task", "startup", "--iterations", "1", "--episodes", "2", "--epochs", "1",
+    "distill": ["distill", "--task", "startup", "--iterations", "2", "--episodes", "4", "--epochs", "1",
                 "--validation-episodes", "2", "--quiet", "--save-dir", "{out}/agent"],
     "train": ["train", "--algo", "ppo", "--task", "startup", "--n-timesteps", "20000", "--quiet",
               "--log-dir", "{out}/runs", "--save-dir", "{out}/agent"],
@@ -639,6 +639,10 @@ def test_ctrl_c_at_random_times_ends_every_long_command_in_one_line_and_writes_n
         sent = time.perf_counter()
         proc.send_signal(signal.SIGINT)
         err = proc.communicate(timeout=60)[1]
+        if proc.returncode == 0 and not err.strip():  # it had finished its work when the signal came: all written
+            result = Path(next(a for a in args if a.startswith(str(out))))
+            assert result.is_file() or (result.is_dir() and any(result.iterdir())), result
+            continue
         latencies.append(time.perf_counter() - sent)
         assert proc.returncode == 130 and err.strip().splitlines() == [f"millvib {command}: interrupted"], err
         written = [p for p in out.rglob("*") if p.is_file() and "runs" not in p.relative_to(out).parts]
