@@ -186,11 +186,17 @@ def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
 
 def test_the_controller_groups_expand_to_their_members_once():
     from millvib_env.evaluation.benchmark import DEPLOYABLE_CLASSICAL, _expand_groups
+    from millvib_env.tasks import get_task
 
-    assert _expand_groups(["classical", "pid-paper"], "v1") == list(DEPLOYABLE_CLASSICAL)
-    assert _expand_groups(["bounds"], "v1") == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]
-    assert _expand_groups(["bounds"], "v0") == ["pid-pf-oracle", "lqr-oracle"]  # no MPC on the analog loop
-    assert _expand_groups(["my-agent", "classical"], "v1")[0] == "my-agent"
+    start, rolling = get_task("startup"), get_task("rolling")
+    assert _expand_groups(["classical", "pid-paper"], "v1", start) == list(DEPLOYABLE_CLASSICAL)
+    assert _expand_groups(["bounds"], "v1", start) == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]
+    assert _expand_groups(["bounds"], "v0", start) == ["pid-pf-oracle", "lqr-oracle"]  # no MPC on the analog loop
+    assert _expand_groups(["my-agent", "classical"], "v1", start)[0] == "my-agent"
+    # the mission's question: the fixed PID, the reference, the preview's classical controller, its students, the bound
+    assert _expand_groups(["answer"], "v1", rolling) == ["pid-paper", "pid-pf-robust", "pid-pf-preview",
+                                                         "dagger-on-pid-pf-preview-rolling", "mpc-preview"]
+    assert _expand_groups(["answer"], "v0", rolling) == ["pid-paper", "pid-pf-robust"]
 
 
 def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tmp_path, monkeypatch):

@@ -248,3 +248,15 @@ def test_the_benchmarks_preview_overrides_what_a_readers_own_settings_say():
     assert _preview_kwargs({"ff": ctrl}, "exact") == {"ff": {"observation": {"preview_gauge": "exact"}}}
     plain = load_controller("pid-pf-robust", task="rolling", version="v1")
     assert _preview_kwargs({"pid": plain}, "measured") == {}
+
+
+def test_the_per_plant_preview_search_runs_each_plant_as_alone_and_never_ends_above_its_start():
+    from millvib_env.tuning.search import tune_preview_per_plant
+
+    start = load_controller("pid-pf-preview", task="rolling", version="v1").gains
+    both = tune_preview_per_plant([120003, 120004], task=ROLLING, start=start, iters=1)
+    alone = tune_preview_per_plant([120004], task=ROLLING, start=start, iters=1)
+    assert both["gains"][1] == alone["gains"][0] and both["cost"][1] == alone["cost"][0]
+    assert all(c <= c0 for c, c0 in zip(both["cost"], both["start_cost"]))
+    with pytest.raises(ValueError, match="start = .* 17 finite gains"):
+        tune_preview_per_plant([120003], task=ROLLING, start=start[:3])

@@ -387,6 +387,13 @@ def _agent_task(folder: Path) -> str:
     return _agent_card_key(folder, "task", "startup")
 
 
+def agent_base(name: str) -> str | None:
+    """The controller an agent was trained on top of (its card's ``on``: a DAgger student's classical controller,
+    e.g. pid-pf-preview), or None."""
+    value = read_card(next(iter(agent_seed_folders(agent_folder(name)).values())) / "card.json").get("on")
+    return value if isinstance(value, str) else None
+
+
 def _agent_version(folder: Path) -> str:
     env_id = _agent_card_key(folder, "env_id", "MillVib-GainSchedule-v0")
     return env_id.rsplit("-", 1)[-1]

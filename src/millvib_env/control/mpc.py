@@ -162,7 +162,7 @@ def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float 
 
 
 def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float) -> MPCModel:
-    from scipy import linalg, sparse
+    from scipy import linalg
 
     ss = linearize(params, xd, friction="sliding", du=min(settings.du_v, params.u_max))
     keep = [STATE_NAMES.index(n) for n in ss.states]
@@ -194,17 +194,24 @@ def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: flo
     for _ in range(N):
         Apow.append(Ad @ Apow[-1])
     Phi = np.vstack(Apow[1:])                      # (N ns, ns)
-    Gam = np.zeros((N * ns, N))
-    Gam_e = np.zeros((N * ns, 3 * N))
-    Gam_w = np.zeros((N * ns, ns))  # a residual w added at every step: s_j += sum_i A^(j-1-i) w
-    for j in range(1, N + 1):
-        for i in range(j):
-            Gam[(j - 1) * ns:j * ns, i] = Apow[j - 1 - i] @ Bd
-            Gam_e[(j - 1) * ns:j * ns, 3 * i:3 * i + 3] = Apow[j - 1 - i] @ Ed
-            Gam_w[(j - 1) * ns:j * ns] += Apow[j - 1 - i]
+    # block (j, i) of the input maps is A^(j-1-i) B (Toeplitz in j - i): each power's product once, then placed
+    AB = np.array([a @ Bd for a in Apow[:N]])       # (N, ns)
+    AE = np.array([a @ Ed for a in Apow[:N]])       # (N, ns, 3)
+    j_i = np.arange(N)[:, None] - np.arange(N)[None, :]  # (j - 1) - i, for block row j - 1 and column i
+    below = j_i >= 0
+    lag = np.where(below, j_i, 0)
+    Gam = (AB[lag] * below[:, :, None]).transpose(0, 2, 1).reshape(N * ns, N)
+    Gam_e = (AE[lag] * below[:, :, None, None]).transpose(0, 2, 1, 3).reshape(N * ns, 3 * N)
+    # a residual w added at every step: s_j += sum_i A^(j-1-i) w, summed in the order of i for every j at once
+    Apow_a = np.array(Apow[:N])
+    Gam_w3 = np.zeros((N, ns, ns))
+    for i in range(N):
+        Gam_w3[i:] += Apow_a[: N - i]
+    Gam_w = Gam_w3.reshape(N * ns, ns)
     # the tracking error x_j - xd_j = s_j[0] - (xd_j - xd0): the set-point deviation of e_j (applied over
     # step j-1 -> j) is the one at t_j, so it enters the target through a selector
-    Qbar = sparse.block_diag([Q] * (N - 1) + [Q + P]).toarray()
+    Qbar = np.kron(np.eye(N), Q)  # block-diagonal: Q at every step, Q + P at the last
+    Qbar[-ns:, -ns:] = Q + P
     Tsel = np.zeros((N * ns, 3 * N))  # the target: s_j[0] = xd_j - xd0 (the xd of e_(j-1))
     for j in range(1, N + 1):
         Tsel[(j - 1) * ns, 3 * (j - 1) + 2] = 1.0

@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 from millvib_env._checks import integer, shown
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, save_figure, write_text_atomic
-from millvib_env.control.agents import agent_seeds, list_agents
+from millvib_env.control.agents import agent_base, agent_seeds, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
 from millvib_env.control.information import from_env_kwargs
@@ -213,7 +213,7 @@ def _on_task(ctrl: Controller, task: Task) -> Controller:
     return bound
 
 
-def _own_controllers(controllers: Any, version: str) -> tuple[list[str], dict[str, Controller]]:
+def _own_controllers(controllers: Any, version: str, task: Task) -> tuple[list[str], dict[str, Controller]]:
     """`controllers` as names (the groups expanded, `_expand_groups`) and a user's `Controller` objects among
     them, by their names (which must be new: no baseline's or shipped agent's name, each once); each of those runs
     in its own environment, which must be of the benchmark's version."""
@@ -239,15 +239,29 @@ def _own_controllers(controllers: Any, version: str) -> tuple[list[str], dict[st
         else:
             raise ValueError(f"controllers[{k}] = {shown(c)} is invalid: a controller name (a string) or a "
                              "Controller object")
-    return _expand_groups(names, version), own
+    return _expand_groups(names, version, task), own
 
 
-def _expand_groups(names: Sequence[str], version: str) -> list[str]:
-    """Controller names with the groups 'classical' (`DEPLOYABLE_CLASSICAL`) and 'bounds' (the `ROOM_BOUNDS` that
-    the version has) in place, each name once."""
+def answer_group(version: str, task: Task) -> list[str]:
+    """The group 'answer', the mission's question in one table: the paper's fixed-gain PID, the reference, and in
+    v1 the classical controller of the preview's information (`ANSWER_CLASSICAL`), the shipped students trained on
+    top of it for `task` (their cards' ``on``) and the bound with the same preview (`ANSWER_BOUND`), which gives the
+    room."""
+    have = baseline_names(version)
+    if ANSWER_CLASSICAL not in have:
+        return ["pid-paper", REFERENCE]
+    learned = [a for a in list_agents(task, version) if agent_base(a) == ANSWER_CLASSICAL]
+    return ["pid-paper", REFERENCE, ANSWER_CLASSICAL, *learned, ANSWER_BOUND]
+
+
+def _expand_groups(names: Sequence[str], version: str, task: Task) -> list[str]:
+    """Controller names with the groups 'classical' (`DEPLOYABLE_CLASSICAL`), 'bounds' (the `ROOM_BOUNDS` that
+    the version has) and 'answer' (`answer_group`) in place, each name once."""
     have = set(baseline_names(version))
     groups = {"classical": [n for n in DEPLOYABLE_CLASSICAL if n in have],
               "bounds": [n for n in ROOM_BOUNDS if n in have]}
+    if "answer" in names:
+        groups["answer"] = answer_group(version, task)
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
@@ -461,7 +475,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     t = task
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
-    names, own = _own_controllers(controllers, env_version) if controllers is not None else \
+    names, own = _own_controllers(controllers, env_version, t) if controllers is not None else \
         (baseline_names(env_version) + list_agents(t.name, env_version), {})
     if own and ray is not None:
         raise ValueError(f"ray = {shown(ray)} is invalid with a Controller object of your own ({', '.join(own)}): "
@@ -529,6 +543,8 @@ ROOM_BOUNDS = {"pid-pf-oracle": "the per-plant re-tuned classical controller (PI
                "lqr-oracle": "a per-plant LQR with integral action",
                "mpc-oracle": "model-predictive control with the plant's state, within +-u_max",
                "mpc-preview": "mpc-oracle with the disturbances' course over its horizon (a preview)"}
+#: the group 'answer' (`answer_group`): the classical controller of the students' information and its bound
+ANSWER_CLASSICAL, ANSWER_BOUND = "pid-pf-preview", "mpc-preview"
 #: the deployable classical controllers, among which the best is named
 DEPLOYABLE_CLASSICAL = ("pid-paper", "pid-nominal", "pid-robust", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
                         "pid-pf-preview")

@@ -90,7 +90,10 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "exported agents (FILE.onnx from millvib export: onnxruntime, no torch); or the "
                         "groups 'classical' (the deployable classical controllers: pid-paper pid-nominal pid-robust "
                         "pid-adaptive pid-pf-robust pid-pf-ff; v1: pid-pf-preview; seconds) and 'bounds' "
-                        "(pid-pf-oracle lqr-oracle; v1: mpc-oracle mpc-preview; minutes) (default: every baseline "
+                        "(pid-pf-oracle lqr-oracle; v1: mpc-oracle mpc-preview; minutes) and 'answer' (the mission's "
+                        "question in one table: pid-paper, pid-pf-robust; v1: pid-pf-preview, the task's shipped "
+                        "students on it "
+                        "and mpc-preview, which gives the room) (default: every baseline "
                         "and every shipped agent trained on the task)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "

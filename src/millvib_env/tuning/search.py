@@ -32,7 +32,7 @@ from millvib_env.evaluation.evaluate import run_episodes
 from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["GRID", "PF_BOUNDS", "TuneResult", "mean_costs", "tune", "tune_from", "gain_env_kwargs", "ActionTable",
-           "preview_costs", "tune_preview", "PREVIEW_TUNING_GAUGE"]
+           "preview_costs", "tune_preview", "tune_preview_per_plant", "PREVIEW_TUNING_GAUGE"]
 
 #: the coarse grid (log10 of KP, KI, KD) the search starts from
 GRID = (np.arange(4.0, 7.01, 0.25), np.array([-3.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]),
@@ -350,6 +350,123 @@ def preview_costs(gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task, ga
         c = np.array([r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]).reshape(block.shape[0], m)
         costs[start:start + block.shape[0]] = c
     return costs.mean(axis=1)
+
+
+def _pair_costs(gains: np.ndarray, seeds: Sequence[int], task: Task, gauge: str | dict, chunk: int) -> np.ndarray:
+    """Episode cost of environment j: gain row j on plant seeds[j], `chunk` environments a batch (each row's number
+    as alone: `PreviewFeedforward.batch_exact`)."""
+    out = np.empty(len(seeds))
+    for a in range(0, len(seeds), chunk):
+        ctrl = PreviewFeedforward("preview-table", gains[a:a + chunk], named_gains(REFERENCE, task, "v1"))
+        ctrl.task = task
+        recs = run_episodes(ctrl, list(seeds[a:a + chunk]), task=task,
+                            env_kwargs={"observation": {"preview_gauge": gauge}})
+        out[a:a + chunk] = [r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]
+    return out
+
+
+class _Lockstep:
+    """Searches that run in threads and only wait: each `ask`s for its points' costs, and the caller's thread
+    (`serve`) evaluates every waiting search's points in one batch with `evaluate(points per search)`."""
+
+    def __init__(self, n: int, evaluate):
+        import threading
+
+        self.cond = threading.Condition()
+        self.evaluate = evaluate
+        self.asked: dict[int, np.ndarray] = {}
+        self.answered: dict[int, np.ndarray] = {}
+        self.running = n
+        self.failed: list[BaseException] = []
+
+    def ask(self, i: int, points: np.ndarray) -> np.ndarray:
+        with self.cond:
+            self.asked[i] = points
+            self.cond.notify_all()
+            while i not in self.answered:
+                self.cond.wait()
+            return self.answered.pop(i)
+
+    def finished(self, exc: BaseException | None = None) -> None:
+        with self.cond:
+            self.running -= 1
+            if exc is not None:
+                self.failed.append(exc)
+            self.cond.notify_all()
+
+    def serve(self, bar) -> None:
+        while True:
+            with self.cond:
+                while len(self.asked) < self.running and not self.failed:
+                    self.cond.wait()
+                if self.failed:
+                    raise self.failed[0]
+                if self.running == 0:
+                    return
+                batch = dict(self.asked)
+                self.asked.clear()
+            costs = self.evaluate(batch)
+            with self.cond:
+                self.answered.update(costs)
+                self.cond.notify_all()
+            bar.update(1)
+            bar.set_postfix(searches=len(batch))
+
+
+def tune_preview_per_plant(seeds: Sequence[int], *, task: Task, start: Sequence[float],
+                           gauge: str | dict = PREVIEW_TUNING_GAUGE, iters: int = 30, fd_step: float = 0.02,
+                           bound: float = 100.0, chunk: int = 1200, progress: str | None = None) -> dict:
+    """The preview feedforward's gains re-tuned for each plant on that plant's own episode: per seed, `tune_preview`'s
+    search (L-BFGS-B within +-`bound`, forward differences of `fd_step`) from `start` (the shipped gains) on that one
+    episode, with the preview `gauge`. A ceiling for any schedule of the 17 gains, an adaptive one included: it knows
+    the plant and the very disturbances it is scored on. The plants' searches run in lockstep (one thread each, which
+    only waits: `_Lockstep`), so each round's points of every plant go through the compiled kernel in one batch;
+    each plant's numbers are those of its search alone. Returns per seed the best gains, their cost and the cost at
+    `start`."""
+    import threading
+
+    from tqdm.auto import tqdm
+
+    seeds = [int(s) for s in seeds]
+    x0 = np.asarray(start, float)
+    dim = len(FF_CHANNELS)
+    if x0.shape != (dim,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"start = {shown(start)} is invalid: {dim} finite gains ({', '.join(FF_CHANNELS)})")
+    best: list[tuple[float, np.ndarray]] = [(math.inf, x0)] * len(seeds)
+    first = [math.nan] * len(seeds)
+
+    def evaluate(batch: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+        order = sorted(batch)
+        c = _pair_costs(np.vstack([batch[i] for i in order]), [seeds[i] for i in order for _ in range(dim + 1)],
+                        task, gauge, chunk)
+        return {i: c[k * (dim + 1):(k + 1) * (dim + 1)] for k, i in enumerate(order)}
+
+    step = _Lockstep(len(seeds), evaluate)
+
+    def search(i: int) -> None:
+        def cost_and_grad(x: np.ndarray) -> tuple[float, np.ndarray]:
+            c = step.ask(i, np.vstack([x, x + fd_step * np.eye(dim)]))
+            first[i] = float(c[0]) if math.isnan(first[i]) else first[i]
+            best[i] = min(best[i], (float(c[0]), x.copy()), key=lambda b: b[0])
+            return float(c[0]), (c[1:] - c[0]) / fd_step
+
+        try:
+            optimize.minimize(cost_and_grad, x0, jac=True, method="L-BFGS-B", bounds=[(-bound, bound)] * dim,
+                              options={"maxiter": iters, "ftol": 1e-5})
+        except BaseException as exc:  # raised again in the caller's thread
+            step.finished(exc)
+        else:
+            step.finished()
+
+    threads = [threading.Thread(target=search, args=(i,), daemon=True) for i in range(len(seeds))]
+    for t in threads:
+        t.start()
+    with tqdm(desc=progress, unit="round", disable=progress is None, leave=False) as bar:
+        step.serve(bar)
+    for t in threads:
+        t.join()
+    return {"seeds": seeds, "gains": [[float(v) for v in b[1]] for b in best], "cost": [b[0] for b in best],
+            "start_cost": first}
 
 
 def tune_preview(seeds: Sequence[int], *, task: Task, gauge: str | dict = PREVIEW_TUNING_GAUGE, iters: int = 30,
