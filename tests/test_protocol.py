@@ -394,3 +394,19 @@ def test_a_benchmark_whose_agents_run_in_workers_loads_no_learner_in_the_parent(
     assert run.stdout.strip().splitlines()[-1] == "False False", run.stdout + run.stderr
     one = public_json(run_benchmark(["dagger-residual-preview-rolling"], **kw))
     assert json.loads((tmp_path / "two.json").read_text()) == json.loads(json.dumps(one))
+
+
+def test_an_episode_with_its_own_plant_pinned_is_that_episode_and_another_plant_changes_it():
+    from millvib_env.control.factory import load_controller
+    from millvib_env.evaluation.evaluate import run_episodes
+
+    ctrl = load_controller("pid-pf-robust", "varied")
+    kw = {"episode_s": 0.1}
+    plain = run_episodes(ctrl, [320000, 320001], task="varied", env_kwargs=kw)
+    own = {k: plain[0][k] for k in ("c1", "Ct", "beta_e", "mt", "FL")}
+    pinned = run_episodes(ctrl, [320000, 320001], task="varied", env_kwargs=kw,
+                          params=[own, {**own, "c1": 2.0 * own["c1"]}])
+    assert pinned[0]["cost"] == plain[0]["cost"]  # its own draw pinned: the same episode
+    assert pinned[1]["c1"] == 2.0 * own["c1"] and pinned[1]["cost"] != plain[1]["cost"]
+    with pytest.raises(ValueError, match=r"params = .*\(one dict or None per seed\)"):
+        run_episodes(ctrl, [320000], task="varied", params=[own, own])

@@ -102,20 +102,9 @@ def env_kwargs_for(controller: Controller, task: str | Task | None = None, env_k
     return controller.env_kwargs_for(task, env_kwargs)
 
 
-def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | Sequence[str | None] | None = None,
-                 env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
-                 progress: bool = False, desc: str = "", task: str | Task | None = None) -> list[EpisodeRecord]:
-    """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
-
-    `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
-    are merged on top). Controllers that estimate the plant get every step's measured signals. `scenario`:
-    a named scenario for every episode, or one (or None) per seed.
-    """
-    instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
-    seeds = integers("seeds", seeds)
-    env_id = controller.env_id if env_id is None else choice("env_id", env_id, sorted(ENV_IDS))
-    kwargs = env_kwargs_for(controller, task, env_kwargs)
-    n = len(seeds)
+def _reset_options(scenario, params, n: int) -> tuple[list[str | None], list[dict | None]]:
+    """`run_episodes`'s `scenario` and `params` as one scenario (or None) and one reset options dict (or None) per
+    episode."""
     if scenario is None or isinstance(scenario, str):
         scenarios: list[str | None] = [scenario] * n
     elif isinstance(scenario, (list, tuple)) and len(scenario) == n:
@@ -123,11 +112,38 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     else:
         raise ValueError(f"scenario = {shown(scenario)} is invalid: a scenario's name, None, or a list of {n} "
                          "(one per seed)")
+    if params is None:
+        params = [None] * n
+    elif not isinstance(params, (list, tuple)) or len(params) != n:
+        raise ValueError(f"params = {shown(params)} is invalid: None, or a list of {n} (one dict or None per seed)")
+    options = [{**({} if sc is None else {"scenario": sc}), **({} if pp is None else {"params": pp})} or None
+               for sc, pp in zip(scenarios, params)]
+    return scenarios, options
+
+
+def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str | Sequence[str | None] | None = None,
+                 env_id: str | None = None, env_kwargs: dict | None = None, scales: dict | None = None,
+                 progress: bool = False, desc: str = "", task: str | Task | None = None,
+                 params: Sequence[dict | None] | None = None) -> list[EpisodeRecord]:
+    """Run one episode per seed with `controller`; return per-episode metrics (in seed order).
+
+    `task` selects the task's environment config (the controller's own env_kwargs and `env_kwargs`
+    are merged on top). Controllers that estimate the plant get every step's measured signals. `scenario`:
+    a named scenario for every episode, or one (or None) per seed. `params`: one dict (or None) per seed of plant
+    parameters that replace the episode's draw (the reset option ``params``): a plant met again under another
+    seed's disturbances.
+    """
+    instance("controller", controller, Controller, "a Controller (e.g. load_controller('pid-robust'))")
+    seeds = integers("seeds", seeds)
+    env_id = controller.env_id if env_id is None else choice("env_id", env_id, sorted(ENV_IDS))
+    kwargs = env_kwargs_for(controller, task, env_kwargs)
+    n = len(seeds)
+    scenarios, options = _reset_options(scenario, params, n)
     venv = EpisodeBatch(env_id, n, **kwargs)
     venv.core.record_signals = controller.needs_signals
     if controller.reads_plant:
         controller.attach(venv.core)
-    obs = venv.reset(seeds, [None if sc is None else {"scenario": sc} for sc in scenarios])
+    obs = venv.reset(seeds, options)
     controller.on_reset(venv.reset_infos, range(n))
     records: list[EpisodeRecord | None] = [None] * n
     first_params = [dict(info["params"]) for info in venv.reset_infos]

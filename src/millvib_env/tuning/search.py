@@ -352,14 +352,16 @@ def preview_costs(gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task, ga
     return costs.mean(axis=1)
 
 
-def _pair_costs(gains: np.ndarray, seeds: Sequence[int], task: Task, gauge: str | dict, chunk: int) -> np.ndarray:
-    """Episode cost of environment j: gain row j on plant seeds[j], `chunk` environments a batch (each row's number
-    as alone: `PreviewFeedforward.batch_exact`)."""
+def _pair_costs(gains: np.ndarray, seeds: Sequence[int], task: Task, gauge: str | dict, chunk: int,
+                params: Sequence[dict | None] | None = None) -> np.ndarray:
+    """Episode cost of environment j: gain row j on plant seeds[j] (with the plant parameters params[j] where
+    given), `chunk` environments a batch (each row's number as alone: `PreviewFeedforward.batch_exact`)."""
     out = np.empty(len(seeds))
+    params = [None] * len(seeds) if params is None else list(params)
     for a in range(0, len(seeds), chunk):
         ctrl = PreviewFeedforward("preview-table", gains[a:a + chunk], named_gains(REFERENCE, task, "v1"))
         ctrl.task = task
-        recs = run_episodes(ctrl, list(seeds[a:a + chunk]), task=task,
+        recs = run_episodes(ctrl, list(seeds[a:a + chunk]), task=task, params=params[a:a + chunk],
                             env_kwargs={"observation": {"preview_gauge": gauge}})
         out[a:a + chunk] = [r["cost"] if math.isfinite(r["cost"]) else 1e6 for r in recs]
     return out
@@ -415,14 +417,20 @@ class _Lockstep:
 
 def tune_preview_per_plant(seeds: Sequence[int], *, task: Task, start: Sequence[float],
                            gauge: str | dict = PREVIEW_TUNING_GAUGE, iters: int = 30, fd_step: float = 0.02,
-                           bound: float = 100.0, chunk: int = 1200, progress: str | None = None) -> dict:
-    """The preview feedforward's gains re-tuned for each plant on that plant's own episode: per seed, `tune_preview`'s
-    search (L-BFGS-B within +-`bound`, forward differences of `fd_step`) from `start` (the shipped gains) on that one
-    episode, with the preview `gauge`. A ceiling for any schedule of the 17 gains, an adaptive one included: it knows
-    the plant and the very disturbances it is scored on. The plants' searches run in lockstep (one thread each, which
-    only waits: `_Lockstep`), so each round's points of every plant go through the compiled kernel in one batch;
-    each plant's numbers are those of its search alone. Returns per seed the best gains, their cost and the cost at
-    `start`."""
+                           bound: float = 100.0, chunk: int = 1200, progress: str | None = None,
+                           episodes: Sequence[Sequence[int]] | None = None,
+                           params: Sequence[dict | None] | None = None) -> dict:
+    """The preview feedforward's gains re-tuned for each plant: per plant, `tune_preview`'s search (L-BFGS-B within
+    +-`bound`, forward differences of `fd_step`) from `start` (the shipped gains), with the preview `gauge`, on the
+    mean cost of its `episodes` (seeds; default: the plant's own episode, seeds[i] alone) with its plant parameters
+    `params[i]` pinned (the reset option; default: each episode's own draw). On its own episode it approaches the
+    most any schedule of the 17 gains could reach, an adaptive one included: it knows the plant and the very
+    disturbances it is scored on (a local search: the cost is not convex once the valve saturates). On other
+    episodes of the same plant it is the gains an ideal adaptive controller would schedule: the plant known, its
+    disturbances not. The plants' searches run in lockstep (one thread each, which only waits:
+    `_Lockstep`), so each round's points of every plant go through the compiled kernel in one batch; each plant's
+    numbers are those of its search alone. Returns per plant the best gains, their cost and the cost at `start`
+    (means over its episodes)."""
     import threading
 
     from tqdm.auto import tqdm
@@ -432,14 +440,26 @@ def tune_preview_per_plant(seeds: Sequence[int], *, task: Task, start: Sequence[
     dim = len(FF_CHANNELS)
     if x0.shape != (dim,) or not np.all(np.isfinite(x0)):
         raise ValueError(f"start = {shown(start)} is invalid: {dim} finite gains ({', '.join(FF_CHANNELS)})")
+    runs = [[s] for s in seeds] if episodes is None else [[int(e) for e in es] for es in episodes]
+    pins = [None] * len(seeds) if params is None else list(params)
+    if len(runs) != len(seeds) or len(pins) != len(seeds) or not all(runs):
+        raise ValueError(f"episodes and params are invalid: one non-empty list of seeds and one dict (or None) for "
+                         f"each of the {len(seeds)} plants")
     best: list[tuple[float, np.ndarray]] = [(math.inf, x0)] * len(seeds)
     first = [math.nan] * len(seeds)
 
     def evaluate(batch: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
         order = sorted(batch)
-        c = _pair_costs(np.vstack([batch[i] for i in order]), [seeds[i] for i in order for _ in range(dim + 1)],
-                        task, gauge, chunk)
-        return {i: c[k * (dim + 1):(k + 1) * (dim + 1)] for k, i in enumerate(order)}
+        rows = np.vstack([np.repeat(batch[i], len(runs[i]), axis=0) for i in order])
+        env_seeds = [e for i in order for _ in range(dim + 1) for e in runs[i]]
+        env_params = [pins[i] for i in order for _ in range(dim + 1) for _ in runs[i]]
+        c = _pair_costs(rows, env_seeds, task, gauge, chunk, env_params)
+        out, at = {}, 0
+        for i in order:
+            k = len(runs[i])
+            out[i] = c[at:at + (dim + 1) * k].reshape(dim + 1, k).mean(axis=1)
+            at += (dim + 1) * k
+        return out
 
     step = _Lockstep(len(seeds), evaluate)
 
