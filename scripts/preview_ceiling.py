@@ -3,7 +3,7 @@
 against the shipped `pid-pf-preview`, its students and `mpc-preview` on the same plants, from the task's saved
 benchmark (rerun `millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T` first).
 
-    MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task varied --jobs 2 \
+    MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task varied --plants 100 --episodes 4 --jobs 2 \
         > docs/benchmark/v1/varied/preview-ceiling.md
 
 Two re-tunings per plant:
@@ -140,7 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     learned = [n for n, c in result["controllers"].items() if c.get("same_information", {}).get("classical") == FF]
 
     print(f"# {args.task}: the classical preview controller re-tuned per plant\n")
-    print(f"`MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task {args.task} --jobs {args.jobs}`, on the "
+    plants = "" if args.plants is None else f" --plants {args.plants}"
+    print(f"`MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task {args.task}{plants} --episodes "
+          f"{args.episodes} --jobs {args.jobs}`, on the "
           f"saved benchmark's {len(seeds)} held-out plants (measured preview), paired 95 % intervals. `{FF}` with "
           f"its 17 gains re-tuned **for the plant** (on {args.episodes} other episodes of it: its parameters known, "
           "its disturbances not; the gains an ideal adaptive controller would schedule) and **on its own episode** "
