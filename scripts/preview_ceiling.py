@@ -3,7 +3,7 @@
 against the shipped `pid-pf-preview`, its students and `mpc-preview` on the same plants, from the task's saved
 benchmark (rerun `millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T` first).
 
-    MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task varied --plants 100 --episodes 4 --jobs 2 \
+    MILLVIB_NUM_THREADS=1 python scripts/preview_ceiling.py --task varied --episodes 4 --jobs 2 \
         > docs/benchmark/v1/varied/preview-ceiling.md
 
 Two re-tunings per plant:
