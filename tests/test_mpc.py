@@ -369,6 +369,35 @@ def test_a_new_episode_starts_the_oracle_afresh():
     assert _plain_episode(fresh, fresh.make_env(**SHORT), 320002) == second
 
 
+@pytest.mark.parametrize("task", ["startup", "change"])
+def test_the_commands_of_a_batch_are_each_environments_own(task):
+    """`teacher_commands` computes every environment's linear term on the stacked models at once; each command
+    must be the one that environment alone gets (`teacher_command(i)`, one slot), through model rebuilds (the
+    start's ramp, the plant change) and a restarted episode. Both paths make the same arithmetic; 1e-9 V is far
+    below any command's resolution and far above rounding, and a wrong slot or a stale estimate is volts off."""
+    from millvib_env.envs.batch import EpisodeBatch
+
+    seeds = [1500, 1501, 1502]
+    pair = []
+    for _ in range(2):
+        ctrl = load_controller("mpc-preview", task, version="v1")
+        venv = EpisodeBatch(ctrl.env_id, len(seeds), config=get_task(task).config, episode_s=0.1)
+        venv.reset(seeds)
+        ctrl.attach(venv.core)
+        ctrl.on_reset(venv.reset_infos, range(len(seeds)))
+        pair.append((ctrl, venv))
+    (batch, vb), (alone, va) = pair
+    for step in range(vb.core.max_steps + 5):  # past the end: the restarted episodes too
+        u = batch.teacher_commands()
+        u_alone = np.array([alone.teacher_command(i) for i in range(len(seeds))])
+        np.testing.assert_allclose(u, u_alone, rtol=0.0, atol=1e-9)
+        for ctrl, venv in pair:
+            _, dones, _ = venv.step((u / venv.core.u_range)[:, None].astype(np.float32))
+            if dones.any():
+                ctrl.on_reset(venv.reset_infos, np.flatnonzero(dones))
+    assert batch.solves == alone.solves > 0
+
+
 def test_the_offset_free_estimate_removes_a_steady_model_error_whole():
     """The prediction already holds the estimate w, so what it misses is r - w for a steady model error r: the
     estimate must settle at r (zero miss), not at r / 2 as a filter of the miss itself does."""

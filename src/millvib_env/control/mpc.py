@@ -210,21 +210,24 @@ def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: flo
     Gam_w = Gam_w3.reshape(N * ns, ns)
     # the tracking error x_j - xd_j = s_j[0] - (xd_j - xd0): the set-point deviation of e_j (applied over
     # step j-1 -> j) is the one at t_j, so it enters the target through a selector
-    Qbar = np.kron(np.eye(N), Q)  # block-diagonal: Q at every step, Q + P at the last
+    Qbar = np.zeros((N * ns, N * ns))  # block-diagonal: Q at every step, Q + P at the last (np.kron's values)
+    for j in range(N - 1):
+        Qbar[j * ns:(j + 1) * ns, j * ns:(j + 1) * ns] = Q
     Qbar[-ns:, -ns:] = Q + P
     Tsel = np.zeros((N * ns, 3 * N))  # the target: s_j[0] = xd_j - xd0 (the xd of e_(j-1))
     for j in range(1, N + 1):
         Tsel[(j - 1) * ns, 3 * (j - 1) + 2] = 1.0
     D = np.eye(N) - np.eye(N, k=-1)  # command moves
     rd = settings.r_d / U_SCALE_V ** 2
-    H = Gam.T @ Qbar @ Gam + R * np.eye(N) + rd * D.T @ D
+    GQ = Gam.T @ Qbar  # the left factor of every product below, once
+    H = GQ @ Gam + R * np.eye(N) + rd * D.T @ D
     H = 0.5 * (H + H.T)
-    G_s = Gam.T @ Qbar @ Phi
-    G_e = Gam.T @ Qbar @ (Gam_e - Tsel)
+    G_s = GQ @ Phi
+    G_e = GQ @ (Gam_e - Tsel)
     G_u = np.zeros(N)
     G_u[0] = -rd  # the first move is from the command already held
     return MPCModel(keep=keep, y0=ss.op.y.copy(), u0=float(ss.op.y[IUI]), xd0=float(xd), Ad=Ad, Bd=Bd, Ed=Ed,
-                    H=H, G_s=G_s, G_e=G_e, G_u=G_u, G_w=Gam.T @ Qbar @ Gam_w, Q=Q, P=P)
+                    H=H, G_s=G_s, G_e=G_e, G_u=G_u, G_w=GQ @ Gam_w, Q=Q, P=P)
 
 
 class MPCPolicy(Controller):
@@ -245,9 +248,8 @@ class MPCPolicy(Controller):
         self.core: MillVibCore | None = None
         self._models: list[MPCModel | None] = []
         self._keys: list[tuple[float, float, float] | None] = []
+        self._stack: dict[str, Any] = {}
         self._xi = np.zeros(0)
-        self._w: list[np.ndarray | None] = []
-        self._pred: list[np.ndarray | None] = []
         self._steps: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}  # per horizon: the steps and midpoints
         #: QP solves that did not report 'solved' (their clipped first move is used)
         self.unsolved = 0
@@ -256,16 +258,15 @@ class MPCPolicy(Controller):
     def attach(self, core, as_teacher: bool = False) -> None:
         """The environments' core (`envs.core.MillVibCore`) whose plants this oracle reads. As a controller it
         drives the valve alone; `as_teacher` attaches it to any valve environment of the sampled loop (a
-        residual one too) to give `teacher_command` for whatever drives it (`training.distill`)."""
+        residual one too) to give `teacher_commands` for whatever drives it (`training.distill`)."""
         if core.loop is None or core.mode != "valve" or (core.residual and not as_teacher):
             raise ValueError(f"{self.name} commands the valve of the sampled loop: run it in {self.env_id}")
         self.core = core
         n = core.n
         self._models = [None] * n
         self._keys = [None] * n
+        self._stack = {}  # every environment's model, stacked (`_place`), made at the first model
         self._xi = np.zeros(n)
-        self._w = [None] * n      # the model's one-step residual, filtered (offset-free prediction)
-        self._pred = [None] * n   # the state the model predicted for this sample
 
     @property
     def _core(self) -> MillVibCore:
@@ -276,9 +277,12 @@ class MPCPolicy(Controller):
         return self.core
 
     def on_reset(self, infos, indices) -> None:
+        st = self._stack
         for i in indices:
             self._xi[i] = 0.0
-            self._w[i] = self._pred[i] = None
+            if st:
+                st["has_w"][i] = st["has_pred"][i] = False
+                st["w"][i] = 0.0
             self._keys[i] = None  # a new episode, a new plant: the model is rebuilt at its first sample
 
     def _model(self, i: int, xd: float) -> MPCModel:
@@ -304,17 +308,39 @@ class MPCPolicy(Controller):
                      np.full(N, (umax - m.u0) / U_SCALE_V), np.full(N, (-umax - m.u0) / U_SCALE_V))
         m.solver = solver
         self._models[i], self._keys[i] = m, key
+        self._place(i, m, umax)
         return m
 
-    def _exogenous(self, i: int, m: MPCModel, N: int) -> np.ndarray:
-        """e_j for the steps from t_k (j = 0: the step already committed) to t_(k+N): (N + 1, 3)."""
+    def _place(self, i: int, m: MPCModel, umax: float) -> None:
+        """Environment i's model into slot i of the stacked arrays that a sample's products run on for every
+        environment at once (`teacher_commands`); the stack is made at the first model (its horizon and states
+        are the settings' and the loop's, the same for every environment of a batch)."""
+        st = self._stack
+        N, ns = m.H.shape[0], len(m.keep) + 1
+        if not st:
+            n = self._core.n
+            st.update(keep=list(m.keep), Ad=np.zeros((n, ns, ns)), Bd=np.zeros((n, ns)), Ed=np.zeros((n, ns, 3)),
+                      G_s=np.zeros((n, N, ns)), G_e=np.zeros((n, N, 3 * N)), G_u=np.zeros((n, N)),
+                      G_w=np.zeros((n, N, ns)), y0=np.zeros((n, ns - 1)), u0=np.zeros(n), xd0=np.zeros(n),
+                      q_scale=np.ones(n), umax=np.zeros(n), w=np.zeros((n, ns)), has_w=np.zeros(n, bool),
+                      pred=np.zeros((n, ns - 1)), has_pred=np.zeros(n, bool))
+        elif st["keep"] != list(m.keep) or st["G_s"].shape[1:] != (N, ns):
+            raise ValueError(f"{self.name}: environment {i}'s plant keeps the states {list(m.keep)} where the "
+                             f"others keep {st['keep']}: one batch runs plants of one valve model (ideal or not)")
+        for k in ("Ad", "Bd", "Ed", "G_s", "G_e", "G_u", "G_w"):
+            st[k][i] = getattr(m, k)
+        st["y0"][i] = m.y0[m.keep]
+        st["u0"][i], st["xd0"][i], st["q_scale"][i], st["umax"][i] = m.u0, m.xd0, m.q_scale, umax
+
+    def _exogenous(self, idx: np.ndarray, xd0: np.ndarray, N: int) -> np.ndarray:
+        """e_j of environments `idx` for the steps from t_k (j = 0: the step already committed) to t_(k+N):
+        (len(idx), N + 1, 3)."""
 
         core = self._core
         assert core.loop is not None  # attach checks it
         dt = core.loop.dt_s
-        k = int(core.k[i]) * core.n_sub
-        t = core.T[i]
-        p = core.P[i]
+        k = core.k[idx] * core.n_sub
+        t = core.T[idx]
         last = core.XD.shape[1] - 1
         if self.settings.preview:
             steps = self._steps.get(N)
@@ -323,75 +349,100 @@ class MPCPolicy(Controller):
                 if self.settings.preview_samples:  # the course known so far, held beyond
                     ahead = np.minimum(ahead, self.settings.preview_samples)
                 steps = self._steps[N] = (ahead, (ahead + 0.5) * dt, dt)
-            idx = np.minimum(k + steps[0], last)
-            tm = t + steps[1]  # the sinusoids at each hold's midpoint
+            at = np.minimum(k[:, None] + steps[0], last)
+            tm = t[:, None] + steps[1]  # the sinusoids at each hold's midpoint
         else:
-            idx = np.full(N + 1, min(k, last))
-            tm = np.full(N + 1, t)
-        e = np.empty((N + 1, 3))
-        e[:, 0] = core.DFL[i, idx] + core._eccentricity(i, tm)  # the force steps and the eccentricity
-        if p[P_PA] != 0.0:
-            e[:, 1] = supply_ripple(tm, p)
-        else:
-            e[:, 1] = 0.0
-        e[:, 2] = core.XD[i, np.minimum(idx + 1, last)] - m.xd0  # the set-point at the step's end
+            at = np.repeat(np.minimum(k, last)[:, None], N + 1, axis=1)
+            tm = np.repeat(t[:, None], N + 1, axis=1)
+        rows = idx[:, None]
+        e = np.empty((len(idx), N + 1, 3))
+        e[:, :, 0] = core.DFL[rows, at] + core._eccentricity(rows, tm)  # the force steps and the eccentricity
+        for j, i in enumerate(idx):
+            p = core.P[i]
+            e[j, :, 1] = supply_ripple(tm[j], p) if p[P_PA] != 0.0 else 0.0
+        e[:, :, 2] = core.XD[rows, np.minimum(at + 1, last)] - xd0[:, None]  # the set-point at the step's end
         return e
 
-    def teacher_command(self, i: int) -> float:
-        """The command (V) the oracle sends (as a controller) or would send (as a teacher) from environment
-        i's state now; its internal state moves on: call it once per sample."""
+    def teacher_commands(self, idx: np.ndarray | None = None) -> np.ndarray:
+        """The commands (V) the oracle sends (as a controller) or would send (as a teacher) from the state now of
+        environments `idx` (default: all); their internal states move on: call it once per sample.
+
+        Each environment's QP is its own (its plant's model, its DAQP solver); its linear term and the model's
+        predictions are computed for every environment at once on the stacked models (`_place`): numpy's
+        stacked matmul calls BLAS's gemv per environment as one environment's product does, and the other terms
+        are the same elementwise operations in the same order, so every command is the one environment's own
+        (to the bit in the four tasks' benchmarks, measured; tests/test_mpc.py compares them)."""
 
         core = self._core
         assert core.loop is not None  # attach checks it
-        k = int(core.k[i]) * core.n_sub
-        xd_now = float(core.XD[i, min(k, core.XD.shape[1] - 1)])
-        m = self._model(i, xd_now)
-        N = m.H.shape[0]
-        y = core.Y[i]
-        y_kept, y0_kept = y[m.keep], m.y0[m.keep]
-        s = np.empty(len(m.keep) + 1)
-        s[:-1] = y_kept - y0_kept
-        s[-1] = self._xi[i]
-        e = self._exogenous(i, m, N)
+        idx = np.arange(core.n) if idx is None else np.asarray(idx, dtype=np.intp)
+        last = core.XD.shape[1] - 1
+        xd_now = core.XD[idx, np.minimum(core.k[idx] * core.n_sub, last)]
+        models = [self._model(int(i), float(x)) for i, x in zip(idx, xd_now)]
+        st = self._stack
+        whole = len(idx) == core.n and bool(np.all(idx == np.arange(core.n)))
+        sel = slice(None) if whole else idx
+
+        def mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # each slot's matrix times its vector
+            return np.matmul(A, x[:, :, None])[:, :, 0]
+
+        Ad, Bd, Ed, u0 = st["Ad"][sel], st["Bd"][sel], st["Ed"][sel], st["u0"][sel]
+        N = st["G_s"].shape[1]
+        y_kept = core.Y[idx][:, st["keep"]]
+        y0 = st["y0"][sel]
+        s = np.empty((len(idx), len(st["keep"]) + 1))
+        s[:, :-1] = y_kept - y0
+        s[:, -1] = self._xi[idx]
+        e = self._exogenous(idx, st["xd0"][sel], N)
         # offset-free: what the model missed over the last sample (the valve's two gains, friction, the
         # operating point's drift), filtered and held over the horizon
         a = self.settings.residual_filter
-        w = self._w[i]
-        pred = self._pred[i]
-        if a > 0.0 and pred is not None and pred.shape == y_kept.shape:
+        w, has_w = st["w"][idx], st["has_w"][idx]
+        if a > 0.0:
+            upd = st["has_pred"][idx]
             miss = np.zeros_like(s)
-            miss[:-1] = y_kept - pred
-            w = offset_free_update(None if w is None or w.shape != s.shape else w, miss, a)
-            self._w[i] = w
-        if w is None or w.shape != s.shape:
-            w = np.zeros_like(s)
+            miss[:, :-1] = y_kept - st["pred"][idx]
+            am = a * miss  # offset_free_update, for every environment that has a prediction
+            w = np.where(upd[:, None], np.where(has_w[:, None], w + am, am), w)
+            has_w = has_w | upd
+            st["w"][idx], st["has_w"][idx] = w, has_w
+        w = np.where(has_w[:, None], w, 0.0)
         delayed = core.loop.delay_samples > 0
         if delayed:  # the command held over [t_k, t_(k+1)] was computed a sample ago
-            held = float(core.CS[i, K_UPEND])
-            s = m.Ad @ s + m.Bd * (held - m.u0) + m.Ed @ e[0] + w
-            e_h = e[1:]
+            held = core.CS[idx, K_UPEND]
+            s = mv(Ad, s) + Bd * (held - u0)[:, None] + mv(Ed, e[:, 0]) + w
+            e_h = e[:, 1:]
         else:
-            held = float(core.CS[i, K_UAPP])
-            e_h = e[:-1]
-        q = m.G_s @ s + m.G_e @ e_h.reshape(-1) + m.G_u * (held - m.u0) + m.G_w @ w
-        z0, status = _solve_first_move(m.solver, q * m.q_scale)
-        self.solves += 1
-        if status < 1:  # DAQP failed (its first move is then taken as no move from the operating point's command)
-            self.unsolved += 1
-        du = U_SCALE_V * z0 if math.isfinite(z0) else 0.0
-        umax = core.params[i].u_max
-        u = min(max(m.u0 + du, -umax), umax)
+            held = core.CS[idx, K_UAPP]
+            e_h = e[:, :-1]
+        q = mv(st["G_s"][sel], s) + mv(st["G_e"][sel], e_h.reshape(len(idx), -1)) \
+            + st["G_u"][sel] * (held - u0)[:, None] + mv(st["G_w"][sel], w)
+        q *= st["q_scale"][sel][:, None]
+        z0 = np.empty(len(idx))
+        for j, m in enumerate(models):
+            z0[j], status = _solve_first_move(m.solver, q[j])
+            if status < 1:  # DAQP failed (its first move is then taken as no move from the operating point's command)
+                self.unsolved += 1
+        self.solves += len(idx)
+        du = np.where(np.isfinite(z0), U_SCALE_V * z0, 0.0)
+        umax = st["umax"][sel]
+        u = np.minimum(np.maximum(u0 + du, -umax), umax)
         # the integral of the position error, as the model counts it (true position, no noise)
-        self._xi[i] += core.loop.dt_s * (xd_now - y[IX])
+        self._xi[idx] += core.loop.dt_s * (xd_now - core.Y[idx, IX])
         # the model's prediction of the next sample's plant state, absolute (a rebuilt model keeps it)
-        nxt = s if delayed else m.Ad @ s + m.Bd * (u - m.u0) + m.Ed @ e[0] + w
-        self._pred[i] = nxt[:-1] + y0_kept
+        nxt = s if delayed else mv(Ad, s) + Bd * (u - u0)[:, None] + mv(Ed, e[:, 0]) + w
+        st["pred"][idx] = nxt[:, :-1] + y0
+        st["has_pred"][idx] = True
         return u
+
+    def teacher_command(self, i: int) -> float:
+        """`teacher_commands` of environment i alone."""
+        return float(self.teacher_commands(np.array([i]))[0])
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         core = self._core
         obs = np.asarray(observation)
         n = 1 if obs.ndim == 1 else obs.shape[0]
-        u = np.array([self.teacher_command(i) for i in range(n)])
+        u = self.teacher_commands(None if n == core.n else np.arange(n))
         action = (u / core.u_range).astype(np.float32)[:, None]
         return (action[0] if obs.ndim == 1 else action), state

@@ -80,8 +80,8 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
     xs, ys = [], []
     u_range = core.u_range
     for _ in range(core.max_steps):
-        u_t = np.array([teacher.teacher_command(i) for i in range(core.n)])
-        u_b = None if baseline is None else np.array([baseline.teacher_command(i) for i in range(core.n)])
+        u_t = teacher.teacher_commands()
+        u_b = None if baseline is None else baseline.teacher_commands()
         if student is None:
             action = np.zeros((core.n, 1), dtype=np.float32)
         else:
