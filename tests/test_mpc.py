@@ -358,6 +358,22 @@ def test_the_iteration_budget_draws_one_iterations_worth_per_epoch_and_every_poo
     assert [len(b) for b in seen[:-1]] == [1024, 1024, 452] * 2
 
 
+def test_a_large_batch_is_normalised_as_each_row_alone():
+    """`ObsStats.normalize` transforms a large batch (a distillation's pool) a block of rows at a time: every element
+    goes through the same IEEE operations (subtract, divide by a correctly rounded square root, clip, round to
+    float32), so the numbers are the row's own exactly, on any machine."""
+    from millvib_env.control.normalization import _ROWS, ObsStats
+
+    rng = np.random.default_rng(3)
+    stats = ObsStats(rng.normal(size=5), rng.random(5) * 4.0, 10.0, 2.0, 1e-8)
+    X = (rng.normal(size=(2 * _ROWS + 7, 5)) * 3.0).astype(np.float32)
+    Z = stats.normalize(X)
+    assert Z.dtype == np.float32 and Z.shape == X.shape
+    for i in (0, _ROWS - 1, _ROWS, 2 * _ROWS + 6):
+        assert np.array_equal(Z[i], stats.normalize(X[i]))
+    assert np.abs(Z).max() <= 2.0
+
+
 def test_a_new_episode_starts_the_oracle_afresh():
     """In a plain loop, the second episode of one controller equals a fresh controller's on the same seed: no
     model, integral or residual of the first plant is carried over."""
