@@ -185,7 +185,7 @@ def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
 
 
 def test_the_controller_groups_expand_to_their_members_once():
-    from millvib_env.evaluation.benchmark import DEPLOYABLE_CLASSICAL, _expand_groups
+    from millvib_env.evaluation.benchmark.lineup import DEPLOYABLE_CLASSICAL, _expand_groups
     from millvib_env.tasks import get_task
 
     start, rolling = get_task("startup"), get_task("rolling")

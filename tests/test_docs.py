@@ -147,7 +147,7 @@ def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_ar
                  "training": ("millvib_env.tuning",), "control": upper, "envs": upper + ("millvib_env.control",),
                  "plant": upper + ("millvib_env.control", "millvib_env.envs")}
     for folder, banned in forbidden.items():
-        for path in (root / folder).glob("*.py"):
+        for path in (root / folder).rglob("*.py"):
             if folder == "training" and path.stem in shims:
                 continue
             for node in ast.walk(parsed(path)):

@@ -698,6 +698,7 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_
     result intact."""
     import millvib_env.evaluation.benchmark as bench
     from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.evaluation.benchmark import comparison, run
 
     out = tmp_path / "result.json"
     out.write_text("old")
@@ -717,7 +718,8 @@ def test_a_ctrl_c_a_library_swallowed_still_ends_the_run_and_writes_nothing(tmp_
         def swallowing_summary(*a, **k):
             _swallowed_ctrl_c()
             return summarize(*a, **k)
-        monkeypatch.setattr(bench, "summarize", swallowing_summary)
+        for where in (run, comparison):  # where the summaries are made
+            monkeypatch.setattr(where, "summarize", swallowing_summary)
     before = signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C as a terminal's foreground gets it
     try:
         status = cli_main(["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--json", str(out),

@@ -241,7 +241,7 @@ def test_the_benchmark_measures_the_preview_of_its_readers_and_can_give_it_exact
 def test_the_benchmarks_preview_overrides_what_a_readers_own_settings_say():
     """A controller whose own environment reads the measured preview runs on the exact one under
     ``--preview exact`` (and the reverse): the benchmark's setting is the one every preview reader gets."""
-    from millvib_env.evaluation.benchmark import _preview_kwargs
+    from millvib_env.evaluation.benchmark.lineup import _preview_kwargs
 
     ctrl = load_controller("pid-pf-preview", task="rolling", version="v1")
     ctrl.env_kwargs["observation"]["preview_gauge"] = "measured"

@@ -155,7 +155,8 @@ def test_mpc_runs_in_a_plain_gymnasium_loop_as_in_the_benchmark():
 
 
 def _fake(costs: dict) -> dict:
-    from millvib_env.evaluation.benchmark import _compare, summarize
+    from millvib_env.evaluation.benchmark.protocol import summarize
+    from millvib_env.evaluation.benchmark.comparison import _compare
 
     recs = {n: [{"seed": i, "cost": float(c), "severity_mm_s": 1.0, "tracking_rms_um": 1.0, "iso_zone": "A",
                  "diverged": False, "command_max_abs_v": 1.0, "command_at_limit_share": 0.0, "spool_stroke_m": 0.0,

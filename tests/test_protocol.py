@@ -323,7 +323,7 @@ def test_jobs_auto_runs_worker_processes_only_where_they_pay(monkeypatch):
     """`--jobs auto` (the CLI's default): processes where an MPC bound or two agent runs take part on enough
     plants, never more than the usable cores, MILLVIB_NUM_THREADS or AUTO_JOBS_MAX; one process for the classical
     controllers, for one agent (all its plants are one job) and for a few plants."""
-    from millvib_env.evaluation import benchmark as bm
+    from millvib_env.evaluation.benchmark import jobs as bm
     from millvib_env.threads import THREADS_ENV
 
     monkeypatch.delenv(THREADS_ENV, raising=False)
@@ -356,17 +356,18 @@ def test_the_benchmarks_and_the_sweeps_figures_keep_every_text_inside_and_their_
     import matplotlib.pyplot as plt
 
     import millvib_env.evaluation.benchmark as bench
+    from millvib_env.evaluation.benchmark import plots
     from millvib_env.evaluation.sweep import _maps, run_sweep
     from tests._figures import texts_inside_and_panels_apart
 
     drawn = []
-    monkeypatch.setattr(bench, "save_figure", lambda fig, path, dpi=100: drawn.append(fig) or path)
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, dpi=100: drawn.append(fig) or path)
     result = bench.run_benchmark(["pid-paper", "pid-pf-robust", "dagger-residual-preview-rolling"], task="rolling",
                                  episodes=2, scenarios=False, progress=False)
-    bench._plot_plane(result, tmp_path / "a.png")
-    bench._plot_paired_plane(result, tmp_path / "b.png")
-    bench._plot_bars(result, tmp_path / "c.png")
-    bench._plot_traces(list(result["controllers"]), tmp_path / "d.png", result["plants"][0], scenario=None,
+    plots._plot_plane(result, tmp_path / "a.png")
+    plots._plot_paired_plane(result, tmp_path / "b.png")
+    plots._plot_bars(result, tmp_path / "c.png")
+    plots._plot_traces(list(result["controllers"]), tmp_path / "d.png", result["plants"][0], scenario=None,
                        task=get_task("rolling"), version="v1")
     drawn.append(_maps(run_sweep(["pid-paper"], 3, params=["c1", "Ct", "beta_e"], progress=False)))
     for fig in drawn:
@@ -410,3 +411,23 @@ def test_an_episode_with_its_own_plant_pinned_is_that_episode_and_another_plant_
     assert pinned[1]["c1"] == 2.0 * own["c1"] and pinned[1]["cost"] != plain[1]["cost"]
     with pytest.raises(ValueError, match=r"params = .*\(one dict or None per seed\)"):
         run_episodes(ctrl, [320000], task="varied", params=[own, own])
+
+
+def test_the_benchmark_packages_names_come_from_their_modules_and_its_flags_import_none_of_it():
+    """Each public name of `evaluation.benchmark` is its module's own object, every one of `__all__` is found, and
+    the CLI's parser (which imports `flags`) loads no other module of the package."""
+    import importlib
+    import subprocess
+    import sys
+
+    import millvib_env.evaluation.benchmark as bench
+
+    stats = {"cvar", "interval", "paired_difference"}
+    assert set(bench._MODULE) | stats == set(bench.__all__) and not set(bench._MODULE) & stats
+    for name in bench.__all__:
+        where = f"{bench.__name__}.{bench._MODULE[name]}" if name in bench._MODULE else "millvib_env.evaluation.stats"
+        assert getattr(bench, name) is getattr(importlib.import_module(where), name)
+    code = ("import sys, millvib_env.evaluation.benchmark.flags; "
+            "print(sorted(m for m in sys.modules if m.startswith('millvib_env.evaluation.benchmark.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['millvib_env.evaluation.benchmark.flags']"

@@ -394,7 +394,8 @@ def build_parser() -> argparse.ArgumentParser:
         "training, tuning, validation and the benchmark's held-out plants."))
     p.set_defaults(func=_cmd_tasks)
 
-    from millvib_env.training.cli_args import add_benchmark_args, add_train_args
+    from millvib_env.evaluation.benchmark.flags import add_benchmark_args
+    from millvib_env.training.cli_args import add_train_args
 
     add_train_args(sub.add_parser("train", help="train an agent", description=textwrap.fill(
         "Train a Stable-Baselines3 agent (SAC with sbx where installed) with the hyperparameters of a zoo-style "
