@@ -2,6 +2,7 @@
 what the best learned controller of that set takes of it, from each task's saved benchmark.
 
     python scripts/learning_table.py      # after `millvib benchmark --task T --all-seeds --out docs/benchmark/v1/T`
+    python scripts/learning_table.py docs/benchmark/v1/second-draw    # a folder of <task>.json (--json) results
 
 Columns: the preview set's classical controller (`pid-pf-preview`) against the reference; the room above it
 (`(classical - bound) / classical`, mean and CVaR-20, paired 95 % intervals); the best learned row of that set
@@ -29,13 +30,14 @@ def learned(result: dict, info: str) -> list[str]:
     return [n for n, c in result["controllers"].items() if c.get("information") == info and "per_seed" in c]
 
 
-def main() -> int:
+def main(argv: list[str]) -> int:
+    folder = Path(argv[0]) if argv else None
     print("| task | `pid-pf-preview` vs `pid-pf-robust`, mean | room above it, mean / CVaR-20 | best learned of the "
           "preview set | vs `pid-pf-preview`: mean / CVaR-20 / severity | share of the room (mean) | "
           "`loop` set: RL gain schedulers vs its classical, mean |")
     print("|---|---|---|---|---|---|---|")
     for task in TASKS:
-        path = ROOT / "docs" / "benchmark" / "v1" / task / "benchmark.json"
+        path = folder / f"{task}.json" if folder else ROOT / "docs" / "benchmark" / "v1" / task / "benchmark.json"
         r = json.loads(path.read_text())
         c = r["controllers"]
         pre = r["information"][PREVIEW]
@@ -63,4 +65,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(sys.argv[1:]))
