@@ -103,11 +103,12 @@ def test_env_steps(benchmark, env_id):
 
 
 @pytest.mark.benchmark(group="pieces")
-def test_mpc_preview_samples(benchmark):
-    """50 loop samples of mpc-preview's commands for 40 plants of the rolling task (its QPs and predictions)."""
+@pytest.mark.parametrize("name", ["mpc-oracle", "mpc-preview"])
+def test_mpc_samples(benchmark, name):
+    """50 loop samples of an MPC bound's commands for 40 plants of the rolling task (its QPs and predictions)."""
     from millvib_env.control.factory import load_controller
 
-    ctrl = load_controller("mpc-preview", "rolling", version="v1")
+    ctrl = load_controller(name, "rolling", version="v1")
     venv = _batch(ctrl.env_id, 40)
     ctrl.attach(venv.core)
     ctrl.on_reset(venv.reset_infos, range(40))
@@ -145,3 +146,77 @@ def test_normalize_a_pool(benchmark):
     X = rng.normal(size=(650000, 73)).astype(np.float32)
     stats = ObsStats(X.mean(0).astype(np.float64), X.var(0).astype(np.float64), float(len(X)), 10.0, 1e-8)
     benchmark.pedantic(stats.normalize, args=(X,), rounds=5, warmup_rounds=1)
+
+
+@pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("env_id", ["MillVib-Valve-v1", "MillVib-GainSchedule-v1"])
+def test_render_frame(benchmark, env_id):
+    """One `render()` frame (what RecordVideo pays per frame) after 25 more steps, the figure already built."""
+    import gymnasium as gym
+
+    env = gym.make(env_id, render_mode="rgb_array")
+    env.reset(seed=0)
+    env.render()  # the first frame builds the figure
+    action = np.zeros(env.action_space.shape, np.float32)
+
+    def steps() -> None:
+        for _ in range(25):
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset(seed=0)
+
+    benchmark.pedantic(env.render, setup=steps, rounds=10, warmup_rounds=1)
+    env.close()
+
+
+@pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("transform", ["band_levels_rows", "vibration_severity_rows"])
+def test_severity(benchmark, transform):
+    """An episode's severity for 200 records: the bands over whole episodes (10 001 samples at 10 kHz) and the
+    severity over their rest after 0.1 s (9 001 samples), one scipy thread, on random walks."""
+    from millvib_env import severity
+
+    records = np.cumsum(np.random.default_rng(1).normal(size=(200, 10_001)), axis=1) * 1e-3
+    rows = records if transform == "band_levels_rows" else records[:, 1000:]
+    benchmark.pedantic(getattr(severity, transform), args=(rows, 10_000.0), kwargs={"workers": 1}, rounds=5,
+                       warmup_rounds=1)
+
+
+@pytest.mark.benchmark(group="pieces")
+def test_simulate_the_papers_cases(benchmark):
+    """`simulate()` of the paper's nine cases, 1 s each (the fast integrator with its argument checks, packing and
+    result object)."""
+    from millvib_env.analysis.studies import PAPER_STUDIES
+    from millvib_env.plant.integrate import simulate
+
+    cases = [(c.params, c.gains) for s in PAPER_STUDIES for c in s.cases]
+
+    def run() -> None:
+        for p, g in cases:
+            simulate(p, g, 1.0)
+
+    benchmark.pedantic(run, rounds=5, warmup_rounds=1)
+
+
+def _rolling_rows() -> list[str]:
+    from millvib_env.control.agents import list_agents
+    from millvib_env.control.registry import baseline_names
+
+    return baseline_names("v1") + list_agents("rolling", "v1")
+
+
+@pytest.mark.benchmark(group="rows")
+@pytest.mark.parametrize("name", _rolling_rows())
+def test_benchmark_row(benchmark, name):
+    """Where a benchmark's time goes: one controller of the rolling task's default set on 8 held-out plants, in a
+    warm process (an agent on its lowest training seed)."""
+    from millvib_env.control.factory import load_controller
+    from millvib_env.evaluation.evaluate import run_episodes
+    from millvib_env.tasks import get_task
+
+    task = get_task("rolling")
+    plants = task.heldout_plants(8, 0)
+    ctrl = load_controller(name, task, version="v1")
+    benchmark.pedantic(run_episodes, args=(ctrl, plants), kwargs={"task": task, "env_id": ctrl.env_id}, rounds=3,
+                       warmup_rounds=1)
+    benchmark.extra_info["plants"] = len(plants)

@@ -203,7 +203,7 @@ class GainScheduleEnv(MillVibEnv):
     ``gymnasium.wrappers.RecordVideo``, whose video plays at ``metadata["render_fps"]`` (20) frames a second
     whatever the drawing's speed. ``"human"`` shows at most 20 frames a second of wall time (an early frame waits
     for its moment); a frame took 45-52 ms (median; 73 ms at most) on a 2-core machine with two trainings running
-    (``python scripts/render_bench.py``), so a loaded machine shows fewer: a late frame is shown at once, never queued.
+    (``python scripts/timing_suite.py -k render``), so a loaded machine shows fewer: a late frame is shown at once, never queued.
 
     ### Your own disturbance
 

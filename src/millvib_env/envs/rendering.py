@@ -3,7 +3,8 @@ and the severity so far. Used by `render()` (rgb_array and human) and works with
 
 The figure is built once per environment (axes, lines, layout); each frame only replaces the lines' data,
 rescales the axes and redraws. A full rebuild with a layout pass per frame took 0.2-1.3 s, so recording a
-500-step episode took minutes (`scripts/render_bench.py` measures both)."""
+500-step episode took minutes (the timing suite's `test_render_frame` measures a frame:
+`python scripts/timing_suite.py -k render`)."""
 
 from __future__ import annotations
 
