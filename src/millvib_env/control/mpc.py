@@ -402,8 +402,9 @@ class MPCPolicy(Controller):
             upd = st["has_pred"][idx]
             miss = np.zeros_like(s)
             miss[:, :-1] = y_kept - st["pred"][idx]
-            am = a * miss  # offset_free_update, for every environment that has a prediction
-            w = np.where(upd[:, None], np.where(has_w[:, None], w + am, am), w)
+            # `offset_free_update` for every environment that has a prediction: a first estimate, or the last moved
+            first, moved = offset_free_update(None, miss, a), offset_free_update(w, miss, a)
+            w = np.where(upd[:, None], np.where(has_w[:, None], moved, first), w)
             has_w = has_w | upd
             st["w"][idx], st["has_w"][idx] = w, has_w
         w = np.where(has_w[:, None], w, 0.0)
