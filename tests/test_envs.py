@@ -100,6 +100,32 @@ def rollout(env, seed, actions):
     return np.array(out), np.array(rewards), info
 
 
+def test_an_env_config_built_once_is_taken_as_it_is_by_every_constructor(monkeypatch):
+    """The four constructors build their engine through one builder (`envs.build`), and an EnvConfig built once at
+    the edge is used as it is: no file is read, the environment is the one built from the config's name, and
+    keyword overrides merge into a copy of it."""
+    import millvib_env.envs.config as config_module
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.envs.vec_env import MillVibVecEnv
+    from millvib_env.envs.vector import ValveVectorEnv
+
+    cfg = load_env_config("rolling", version="v1")
+    by_name = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling")
+    monkeypatch.setattr(config_module, "_read", lambda *a, **k: pytest.fail("a config file was read"))
+    built = [gym.make("MillVib-Valve-v1", config=cfg).unwrapped, MillVibVecEnv("MillVib-Valve-v1", 2, config=cfg),
+             ValveVectorEnv(2, config=cfg), EpisodeBatch("MillVib-Valve-v1", 2, config=cfg)]
+    assert all(env.core.cfg is cfg and env.config is cfg for env in built)
+    assert np.array_equal(built[-1].reset([7, 8]), by_name.reset([7, 8]))
+    a = np.full((2, 1), 0.3, dtype=np.float32)
+    assert np.array_equal(built[-1].step(a)[0], by_name.step(a)[0])
+    changed = EpisodeBatch("MillVib-Valve-v1", 1, config=cfg, reward={"w_effort": 0.5})
+    assert changed.core.cfg.reward.w_effort == 0.5 and cfg.reward.w_effort != 0.5
+    with pytest.raises(ValueError, match="EnvConfig of version 'v1', not 'v0'"):
+        EpisodeBatch("MillVib-Valve-v0", 1, config=cfg)
+    with pytest.raises(ValueError, match="runs its own config"):
+        EpisodeBatch("MillVib-Valve-Rolling-v1", 1, config=cfg)
+
+
 def test_seeded_resets_reproduce_episodes_exactly():
     env = gym.make("MillVib-GainSchedule-v0")
     actions = np.random.default_rng(1).uniform(-1, 1, (60, 3))

@@ -1,8 +1,8 @@
 """JAX's persistent compilation cache for the sbx learners, beside numba's (`_numba_cache`).
 
 sbx compiles its networks' initialisation, prediction and update steps in every process: a short
-`millvib train --algo sac` (sbx, the shipped config) took 26.7 CPU-seconds with every compilation
-made afresh and 16.1 with them loaded (docs/performance.md). JAX keeps what it compiled on disk and
+`millvib train --algo sac` (sbx, the shipped config) spends a third of its CPU time on them when every
+compilation is made afresh (docs/performance.md). JAX keeps what it compiled on disk and
 loads it in the next process (`jax_compilation_cache_dir`); it keys each entry by the computation,
 JAX's version, the backend and the XLA flags, so a run gives the same bytes whether the cache was
 cold or warm. JAX keeps only compilations slower than a second by default; sbx's are many small

@@ -320,6 +320,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"millvib-env {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="<command>")
 
+    for add in (_add_simulate, _add_reproduce, _add_speed, _add_listings,
+                _add_learning, _add_tune, _add_export, _add_distill, _add_sweep):
+        add(sub)
+    return parser
+
+
+def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="one closed-loop run", description=(
         "Simulate one closed-loop plant from the paper's initial state (x0 = 1 mm at rest) and print its "
         "vibration severity (mm/s RMS, 10-1000 Hz), ISO 20816-3 zone, kind of motion over the last 40 % of "
@@ -335,6 +342,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=_cmd_simulate)
 
+
+def _add_reproduce(sub) -> None:
     p = sub.add_parser("reproduce", help="the paper's studies, figures and tables", description=(
         "Simulate the paper's nine cases (c1, Ct and KP studies), write the analogues of Figs. 4-9 (PNG), the "
         "numbers (CSV, JSON), a map of the kind of motion over (c1, KP) and the linear stability map, and print "
@@ -357,6 +366,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_reproduce)
 
+
+def _add_speed(sub) -> None:
     speed_description = (
         "Measure in one run: wall time per simulated second of LSODA at rtol 1e-6 (scipy's solve_ivp, and ODEPACK's "
         "run whole in compiled code, the reference's default) and the fast "
@@ -377,6 +388,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quiet", action="store_true", help="no progress bars")
         p.set_defaults(func=_cmd_speed)
 
+
+def _add_listings(sub) -> None:
     p = sub.add_parser("params", help="list the plant parameters", description=(
         "List every field of MillParams (paper Table 1 and the project's additions): symbol, default, unit, "
         "meaning and the allowed range; a value outside it raises a one-line error naming the field. "
@@ -394,6 +407,8 @@ def build_parser() -> argparse.ArgumentParser:
         "training, tuning, validation and the benchmark's held-out plants."))
     p.set_defaults(func=_cmd_tasks)
 
+
+def _add_learning(sub) -> None:
     from millvib_env.evaluation.benchmark.flags import add_benchmark_args
     from millvib_env.training.cli_args import add_train_args
 
@@ -421,6 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
         "with the disturbances' course over its horizon) on the same held-out plants. Prints the benchmark's "
         "table with the room: (reference - bound) / reference on the mean and the CVaR-20, with paired 95 % "
         "intervals, and each controller's share of it. --controllers adds or replaces rows.")), _cmd_headroom)
+
+
+def _add_tune(sub) -> None:
     from millvib_env.tuning import ENTRIES
 
     p = sub.add_parser("tune", help="tune a task's classical baselines",
@@ -450,6 +468,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=_cmd_tune)
 
+
+def _add_export(sub) -> None:
     p = sub.add_parser("export", help="a trained agent as an ONNX graph, checked against the agent",
                        description=_plain(_module_doc("millvib_env.control.export")),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -464,56 +484,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calls timed at batch 1 for the figure printed (default 2000; 0: none)")
     p.set_defaults(func=_cmd_export)
 
-    p = sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
-                       description=_plain(_module_doc("millvib_env.training.distill")),
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--task", default="rolling", help="task: startup, rolling, change or varied (default rolling)")
-    p.add_argument("--teacher", default="mpc-preview", choices=["mpc-preview", "mpc-oracle"],
-                   help="the oracle that labels every loop sample (default mpc-preview)")
-    p.add_argument("--baseline", default=None, choices=["mpc-oracle"],
-                   help="label with the teacher's command less this oracle's, from the same state (what the "
-                        "preview adds), instead of less the digital PID's own command (default: the PID's)")
-    p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
-    p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
-    p.add_argument("--episodes", type=int, default=25,
-                   help="training episodes per iteration, 1-100 (default 25): the seed's 100 training plants in "
-                        "turn, visited again under the next students past the 100th")
-    p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
-    p.add_argument("--budget", choices=("pool", "iteration"), default="iteration",
-                   help="an epoch's size: 'iteration', one iteration's worth of samples drawn from the pool (a "
-                        "constant cost per iteration; Adam's step 1e-3/sqrt(iteration); default), or 'pool', a pass "
-                        "over every pooled sample (the fit grows with each iteration; the students distilled before "
-                        "this option)")
-    p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
-                   help="each iteration's student is scored on the first N of the task's validation plants "
-                        "(default 40, as the shipped agents')")
-    p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
-                   help="the student's hidden layers (default 256 256)")
-    p.add_argument("--range-v", type=float, default=100.0,
-                   help="the residual's range in volts: action 1 adds this to the PID's command (default 100: "
-                        "enough to move the plant ahead of a step against the PID, which pulls back at 1.3 V per "
-                        "um; the amplifier still limits the sum to +-10 V)")
-    p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
-                   help="the student also reads the measured channels as they were K loop samples ago, for each K "
-                        "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
-    p.add_argument("--loop-sample", choices=("current", "previous"), default="current",
-                   help="the loop's sample the student reads (observation.loop_sample): 'current', the one its "
-                        "action joins at the controller (default), or 'previous', one sample older (the agents "
-                        "distilled before this option)")
-    p.add_argument("--preview", choices=("measured", "exact"), default="measured",
-                   help="the preview the student reads while it learns: measured, as an entry gauge gives it and the "
-                        "benchmark runs it (timing, force-model and noise errors, no eccentricity; default), or "
-                        "exact (the shipped students')")
-    p.add_argument("--on", default=None, choices=["pid-pf-preview"],
-                   help="the classical controller the residual sits on: pid-pf-preview, the classical controller of "
-                        "the student's own information (its tuned feedforward then runs in the environment, and the "
-                        "student learns what it misses within +-RANGE_V; use --range-v 10); default: the "
-                        "reference's PID alone")
-    p.add_argument("--save-dir", required=True, metavar="DIR",
-                   help="the agent folder to write (under agents/ the manifest is updated)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_distill)
 
+def _add_distill(sub) -> None:
+    from millvib_env.training.cli_args import add_distill_args
+
+    add_distill_args(sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
+                       description=_plain(_module_doc("millvib_env.training.distill")),
+                       formatter_class=argparse.RawDescriptionHelpFormatter), _cmd_distill)
+
+
+def _add_sweep(sub) -> None:
     p = sub.add_parser("sweep", help="controllers over many plants", description=(
         "A robustness sweep: every controller on N plants of a task with the swept parameters drawn over wide "
         "ranges (c1, Ct: the paper's, log-uniform; beta_e, mt, FL: +-20 % of Table 1), from held-out seeds. Writes "
@@ -534,8 +514,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run on Ray: a local cluster, or the running cluster at ADDRESS")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_sweep)
-    return parser
-
 
 def main(argv: list[str] | None = None) -> int:
     """Run one `millvib` command; the exit status is returned, never raised (`millvib_cli` exits with it)."""

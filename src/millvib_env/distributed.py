@@ -106,7 +106,7 @@ def expect_modules(*names: str) -> Iterator[None]:
     """Within the block, the fork server imports `names` too when it starts: a command of several pools
     (`millvib reproduce --jobs N`) declares every pool's module before the first, so the workers of a later pool
     whose function lives in another module (the solver study, after the stability maps) do not each import it and
-    what it imports (scipy.signal and scipy.stats there: about 0.7 CPU-s a worker)."""
+    what it imports (scipy.signal and scipy.stats there)."""
     added = set(names) - _expected
     _expected.update(added)
     try:
@@ -118,8 +118,7 @@ def expect_modules(*names: str) -> Iterator[None]:
 def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     """How the workers start: from multiprocessing's fork server where the platform has one (POSIX), else spawned.
 
-    A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again: 1-3 CPU-s each,
-    at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
+    A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again, at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
     the first pool of this process, that imports once the package, the module of the pool's function, the
     modules in `preload` (torch for training) and those a command declared (`expect_modules`), and sets up
     numba's compiler context (`millvib_env._fork_server`); every worker

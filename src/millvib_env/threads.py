@@ -72,7 +72,7 @@ def one_torch_thread() -> None:
 
 class one_blas_thread:
     """Context: BLAS on one thread (threadpoolctl) around small dense solves (the LQR's 4 x 4 Riccati
-    equation: 24 ms with OpenBLAS's threads on a loaded 2-core machine, 0.5-1.2 ms on one). The
+    equation: OpenBLAS's threads cost it tens of times more on a loaded machine; docs/performance.md). The
     libraries are inspected once per process, not per solve."""
 
     _controller = None

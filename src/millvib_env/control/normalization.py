@@ -38,8 +38,8 @@ class ObsStats:
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         """VecNormalize's observation transform, as float32. A large batch (a distillation's pooled samples) is
         transformed `_ROWS` rows at a time into the output: the same operations on every element, so the same
-        numbers, without the whole batch's float64 temporaries (a pool of 650 000 samples took 4.9 CPU-s, now
-        0.24)."""
+        numbers, without the whole batch's float64 temporaries (twenty times faster on a distillation's pool:
+        docs/performance.md)."""
         obs = np.asarray(obs)
         scale = np.sqrt(self.var + self.epsilon)
         if obs.ndim < 2 or obs.shape[0] <= _ROWS:

@@ -13,7 +13,8 @@ from millvib_env._checks import choice, shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
-from millvib_env.envs.config import ENV_VERSIONS, checked_gains
+from millvib_env.envs.config import ENV_VERSIONS
+from millvib_env.envs.schema import checked_gains
 from millvib_env.tasks import Task, get_task, takes_task
 from millvib_env.envs.config import DEFAULT_VERSION
 

@@ -12,8 +12,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from millvib_env._checks import shown
-from millvib_env.envs.config import ENV_VERSIONS, load_env_config
-from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.build import build_core
+from millvib_env.envs.config import ENV_VERSIONS, EnvConfig
 from millvib_env.envs.specs import ENV_SPECS
 
 __all__ = ["EpisodeBatch", "ENV_IDS", "ID_CONFIGS", "env_mode", "env_version", "env_id_for", "id_config"]
@@ -30,13 +30,16 @@ def _entry(env_id: str) -> tuple[str, str]:
     return ENV_IDS[env_id]
 
 
-def id_config(env_id: str, config: str | dict | None) -> str | dict:
+def id_config(env_id: str, config: str | dict | EnvConfig | None) -> str | dict | EnvConfig:
     """The config an environment of `env_id` runs: `config`, or the id's own (a per-config id; "startup" for the
-    two generic ids). A per-config id given another config is refused."""
+    two generic ids). A per-config id given another config, or an EnvConfig, is refused."""
     spec = ENV_SPECS.get(env_id)
     own = None if spec is None else spec.config
     if config is None:
         return own or "startup"
+    if spec is not None and own is not None and isinstance(config, EnvConfig):
+        raise ValueError(f"config is an EnvConfig, but env_id {shown(env_id)} runs its own config {shown(own)}: use "
+                         f"{shown(spec.generic_id)} with config=<the EnvConfig>")
     if spec is not None and own is not None and config != own:
         raise ValueError(f"config = {shown(config)} contradicts env_id {shown(env_id)}, whose config is "
                          f"{shown(own)}: use {shown(spec.generic_id)} with config={shown(config)}")
@@ -66,14 +69,15 @@ class EpisodeBatch:
     """N environments of `env_id`; `reset(seeds)` starts environment i on seeds[i], `step` advances
     them all and restarts the finished ones (their next episode's first observation is returned)."""
 
-    def __init__(self, env_id: str, n: int, *, config: str | dict | None = None, residual: bool = False,
+    def __init__(self, env_id: str, n: int, *, config: str | dict | EnvConfig | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  extra_disturbances: Sequence | None = None, reward_fn: Any = None,
                  envelope_fn: Any = None, **overrides: Any):
-        self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
-        self.core = MillVibCore(n, env_mode(env_id), self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn, envelope_fn=envelope_fn)
+        self.core = build_core(n, env_mode(env_id), env_version(env_id), id_config(env_id, config), residual=residual,
+                               observe_params=observe_params, observe_phase=observe_phase,
+                               extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
+                               overrides=overrides)
+        self.config = self.core.cfg
         self.n = n
         self.reset_infos: list[dict] = [{} for _ in range(n)]
 

@@ -30,6 +30,7 @@ from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
 from millvib_env.envs.feedforward import ChannelFeedforward
 from millvib_env.envs.gauge import gauge_force
+from millvib_env.envs.metrics import record_levels
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
 from millvib_env.envs.reward import Reward
@@ -42,8 +43,7 @@ from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import (A_ACC, A_PS, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID, C_UEXT,
                                      IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_FL, P_PF, P_PS, P_UMAX, drive_vector,
                                      pack, rated_flow, settled_state, state_scale)
-from millvib_env.severity import band_levels_rows, iso_zone, vibration_severity_rows
-from millvib_env.threads import numba_threads, use_threads
+from millvib_env.severity import iso_zone
 
 __all__ = ["MillVibCore", "MAX_BATCH_BYTES"]
 
@@ -78,6 +78,19 @@ class MillVibCore:
         observe_params = seen.params if observe_params is None else observe_params
         observe_phase = seen.phase if observe_phase is None else observe_phase
         self.observe_force = seen.force
+        n_trace = self._set_timing(config, mode)
+        dist = config.disturbances
+        self.disturbances, noise, delay = list(dist.profile), dist.sensor_noise, dist.delay_steps
+        self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
+        self.disturbances += user_disturbances(extra_disturbances)
+
+        self._set_actions(config, mode, observe_params, observe_phase, noise, delay, reward_fn, envelope_fn)
+        self._allocate_state(n_trace)
+
+    def _set_timing(self, config: EnvConfig, mode: str) -> int:
+        """The episode's clock: the agent's period, its control samples and plant samples, the episode's length;
+        a batch whose records would not fit in memory is refused. Returns the samples of an episode's trace."""
+        seen = config.observation
         self.period_s = config.agent_period_s(mode)
         #: the sampled loop (v1: a digital controller at the control rate, sensors in the loop), or None for
         #: the paper's analog loop inside the plant (v0)
@@ -98,11 +111,13 @@ class MillVibCore:
             raise ValueError(f"n_envs = {shown(self.n)} with episode_s = {config.episode_s} s would need "
                              f"{as_float(need) / 2**30:.1f} GiB of episode records; allowed up to "
                              f"{MAX_BATCH_BYTES / 2**30:.0f} GiB: use fewer environments or shorter episodes")
-        dist = config.disturbances
-        self.disturbances, noise, delay = list(dist.profile), dist.sensor_noise, dist.delay_steps
-        self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
-        self.disturbances += user_disturbances(extra_disturbances)
+        return n_trace
 
+    def _set_actions(self, config: EnvConfig, mode: str, observe_params: bool, observe_phase: bool, noise, delay,
+                     reward_fn: Any, envelope_fn: Any) -> None:
+        """The action (gains or valve command, its range, the fixed feedforward under a residual), the observation,
+        the reward and the envelope."""
+        seen = config.observation
         acts = config.actions
         self.gain_map = GainMap.from_config(config)
         self.u_range = float(acts.residual_range_v if self.residual else acts.u_range_v)
@@ -132,7 +147,11 @@ class MillVibCore:
         self.x_max, self.p_min, self.p_max_factor = env.x_max_m, env.p_min_pa, env.p_max_factor
         self.envelope_fn = user_envelope(envelope_fn)
 
-        # per-environment state
+
+    def _allocate_state(self, n_trace: int) -> None:
+        """Every environment's state, zeroed: its generator and plant, the plant's and the loop's states, the
+        episode's courses and records. A reset fills them."""
+        config, seen = self.cfg, self.cfg.observation
         n = self.n
         self.np_random: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(n)]
         self.params: list[MillParams] = [config.base_params] * n
@@ -517,26 +536,7 @@ class MillVibCore:
                 # shortest record the 10 Hz band edge allows (0.1 s), so the cost stays finite and large
                 acc = np.concatenate([acc, np.zeros(split - acc.size)])
             records.append(acc)
-        inf = math.inf
-        levels = {k: np.full(len(idx), inf) for k in ("broadband", "pump_line", "low_band", "start", "rest")}
-        for length in {r.size for r in records}:
-            rows = np.array([j for j, r in enumerate(records) if r.size == length])
-            acc = np.stack([records[j] for j in rows])
-            finite = np.isfinite(acc).all(axis=1)
-            if not finite.all():  # a record with NaN or inf has no severity: it keeps inf
-                rows, acc = rows[finite], acc[finite]
-            if not rows.size:
-                continue
-            workers = numba_threads() if use_threads(len(rows), "metrics") else 1
-            try:  # a record too short for the band (an episode that ended at once) keeps inf
-                parts = band_levels_rows(acc, fs, line_hz=np.array([self.params[i].pulse_freq for i in idx[rows]]),
-                                         workers=workers)
-                for key in ("broadband", "pump_line", "low_band"):
-                    levels[key][rows] = parts[key]
-                levels["start"][rows] = vibration_severity_rows(acc[:, :split], fs, workers=workers)
-                levels["rest"][rows] = vibration_severity_rows(acc[:, split - 1:], fs, workers=workers)
-            except ValueError:
-                pass
+        levels = record_levels(records, fs, np.array([self.params[i].pulse_freq for i in idx]), split)
         out = []
         for j, (i, term) in enumerate(zip(idx, terminated)):
             sev = float(levels["broadband"][j])

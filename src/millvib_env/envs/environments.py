@@ -7,9 +7,9 @@ from typing import Any, Sequence
 import gymnasium as gym
 
 from millvib_env._checks import seed_or_none, shown
-from millvib_env.envs.actions import LoopController, base_controller_overrides
-from millvib_env.envs.config import load_env_config
-from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.actions import LoopController
+from millvib_env.envs.build import build_core
+from millvib_env.envs.config import EnvConfig
 from millvib_env.envs.disturbances import Disturbance
 from millvib_env.envs.envelope import EnvelopeFunction
 from millvib_env.envs.reward import RewardFunction
@@ -24,7 +24,7 @@ class MillVibEnv(gym.Env):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
     mode = "gain"
 
-    def __init__(self, config: str | dict | None = "startup", *, residual: bool = False,
+    def __init__(self, config: str | dict | EnvConfig | None = "startup", *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  render_mode: str | None = None, env_version: str = DEFAULT_VERSION,
                  extra_disturbances: Sequence[Disturbance] | None = None, reward_fn: RewardFunction | None = None,
@@ -33,11 +33,11 @@ class MillVibEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {shown(render_mode)} is invalid: one of {self.metadata['render_modes']} "
                              "or None")
-        overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
-        self.config = load_env_config(config, version=env_version, **overrides)
-        self.core = MillVibCore(1, self.mode, self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn, envelope_fn=envelope_fn)
+        self.core = build_core(1, self.mode, env_version, config, residual=residual, observe_params=observe_params,
+                               observe_phase=observe_phase, extra_disturbances=extra_disturbances,
+                               reward_fn=reward_fn, envelope_fn=envelope_fn, base_controller=base_controller,
+                               overrides=overrides)
+        self.config = self.core.cfg
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode
@@ -195,15 +195,16 @@ class GainScheduleEnv(MillVibEnv):
     ``config`` names a YAML in configs/env/: a task's episode (``startup``, alias ``default``;
     ``rolling``: steady rolling under eccentricity, force steps, gauge corrections and sensor noise;
     ``change``: rolling while damping falls and/or leakage rises mid-episode), or ``paper`` (no
-    extra disturbances), ``realistic``; or is a dict. Any top-level key of it can be given as a
-    keyword; every nested key is checked when the config loads. Every random draw comes from the
+    extra disturbances), ``realistic``; or is a dict; or an ``EnvConfig`` built once at the edge
+    (``load_env_config(name, version=...)``, a task's ``Task.configs[version]``), taken as it is with no file read.
+    Any top-level key of it can be given as a keyword; every nested key is checked when the config loads. Every random draw comes from the
     env's seeded generator; the plant, the disturbances and the sensor noise each use their own
     child of the episode's ``SeedSequence``. ``render_mode="rgb_array"`` or ``"human"`` draws the recent
     displacement, velocity and gains (or valve command) with the severity so far; it works with
     ``gymnasium.wrappers.RecordVideo``, whose video plays at ``metadata["render_fps"]`` (20) frames a second
     whatever the drawing's speed. ``"human"`` shows at most 20 frames a second of wall time (an early frame waits
-    for its moment); a frame took 45-52 ms (median; 73 ms at most) on a 2-core machine with two trainings running
-    (``python scripts/timing_suite.py -k render``), so a loaded machine shows fewer: a late frame is shown at once, never queued.
+    for its moment); a loaded machine draws fewer (a frame's cost: the timing suite's render rows,
+    docs/performance.md): a late frame is shown at once, never queued.
 
     ### Your own disturbance
 

@@ -2,8 +2,8 @@
 
 An environment's reward band-passes the velocity (`envs.reward.Reward`) and the adaptive PID high-passes its
 regression (`control.adaptive`), each with a second-order Butterworth filter that scipy designs. Importing
-`scipy.signal` costs about 0.5-0.9 CPU-s (scipy 1.17 builds its functions' docstrings at import), more than
-making the environment, and every new process (a CLI command, a worker, a test's subprocess) paid it again.
+`scipy.signal` costs more than making the environment (scipy 1.17 builds its functions' docstrings at import;
+docs/performance.md), and every new process (a CLI command, a worker, a test's subprocess) paid it again.
 
 `butter_sos` keeps each design in this version's cache folder (`_numba_cache`, beside the compiled kernels): the
 float64 array scipy returned, bit for bit, in a file named by a hash of the design's arguments, of this module's

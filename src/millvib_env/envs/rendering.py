@@ -2,9 +2,9 @@
 and the severity so far. Used by `render()` (rgb_array and human) and works with RecordVideo.
 
 The figure is built once per environment (axes, lines, layout); each frame only replaces the lines' data,
-rescales the axes and redraws. A full rebuild with a layout pass per frame took 0.2-1.3 s, so recording a
-500-step episode took minutes (the timing suite's `test_render_frame` measures a frame:
-`python scripts/timing_suite.py -k render`)."""
+rescales the axes and redraws. A full rebuild with a layout pass per frame made recording an episode take
+minutes (the timing suite's `test_render_frame` measures a frame: `python scripts/timing_suite.py -k render`,
+docs/performance.md)."""
 
 from __future__ import annotations
 

@@ -10,9 +10,8 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices
 
 from millvib_env._checks import seed_or_none, shown
-from millvib_env.envs.actions import base_controller_overrides
-from millvib_env.envs.config import load_env_config
-from millvib_env.envs.core import MillVibCore
+from millvib_env.envs.build import build_core
+from millvib_env.envs.config import EnvConfig
 
 __all__ = ["MillVibVecEnv", "make_vec_env", "ENV_IDS"]
 
@@ -29,7 +28,7 @@ class MillVibVecEnv(VecEnv):
     """
 
     def __init__(self, env_id: str, n_envs: int, *, seed: int | None = None, render_mode: str | None = None,
-                 config: str | dict | None = None, residual: bool = False,
+                 config: str | dict | EnvConfig | None = None, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  extra_disturbances: Sequence | None = None, reward_fn: Any = None,
                  envelope_fn: Any = None, base_controller: Any = None, **overrides: Any):
@@ -38,11 +37,11 @@ class MillVibVecEnv(VecEnv):
             raise ValueError(f"render_mode = {shown(render_mode)} is invalid")
         self.env_id = env_id
         self.render_mode = render_mode
-        overrides = base_controller_overrides(mode, residual, base_controller, overrides)
-        self.config = load_env_config(id_config(env_id, config), version=env_version(env_id), **overrides)
-        self.core = MillVibCore(n_envs, mode, self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn, envelope_fn=envelope_fn)
+        self.core = build_core(n_envs, mode, env_version(env_id), id_config(env_id, config), residual=residual,
+                               observe_params=observe_params, observe_phase=observe_phase,
+                               extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
+                               base_controller=base_controller, overrides=overrides)
+        self.config = self.core.cfg
         self.core.keep_history = render_mode is not None  # the render's recent samples: kept only where drawn
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)
         self._actions: np.ndarray | None = None

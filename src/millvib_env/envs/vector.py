@@ -26,10 +26,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from millvib_env._checks import seed_or_none, shown
-from millvib_env.envs.actions import base_controller_overrides
-from millvib_env.envs.config import load_env_config
-from millvib_env.envs.core import MillVibCore
-from millvib_env.envs.config import DEFAULT_VERSION
+from millvib_env.envs.build import build_core
+from millvib_env.envs.config import DEFAULT_VERSION, EnvConfig
 
 __all__ = ["MillVibVectorEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]
 
@@ -40,7 +38,7 @@ class MillVibVectorEnv(VectorEnv):
     mode = "gain"
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, *, config: str | dict | None = "startup", residual: bool = False,
+    def __init__(self, num_envs: int = 1, *, config: str | dict | EnvConfig | None = "startup", residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  env_version: str = DEFAULT_VERSION,
                  render_mode: str | None = None, extra_disturbances: Sequence | None = None, reward_fn: Any = None,
@@ -56,11 +54,11 @@ class MillVibVectorEnv(VectorEnv):
         if render_mode is not None:
             raise ValueError(f"render_mode = {shown(render_mode)} is invalid for the vector environment: None (render "
                              "one environment: gym.make)")
-        overrides = base_controller_overrides(self.mode, residual, base_controller, overrides)
-        self.config = load_env_config(config, version=env_version, **overrides)
-        self.core = MillVibCore(num_envs, self.mode, self.config, residual=residual, observe_params=observe_params,
-                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
-                                reward_fn=reward_fn, envelope_fn=envelope_fn)
+        self.core = build_core(num_envs, self.mode, env_version, config, residual=residual,
+                               observe_params=observe_params, observe_phase=observe_phase,
+                               extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
+                               base_controller=base_controller, overrides=overrides)
+        self.config = self.core.cfg
         self.num_envs = self.core.n
         self.single_observation_space = self.core.observation_space
         self.single_action_space = self.core.action_space

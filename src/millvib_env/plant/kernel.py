@@ -178,8 +178,8 @@ def simulate_batch_parallel(P, C, Y0, XD, dt_out, rtol, ATOL, p_max, max_steps, 
     """simulate_one for N plants on `n_threads` of numba's threads: thread j runs plants j, j + T, j + 2T, ...
 
     A plant's cost varies a hundredfold (a limit cycle against a decay), and a map's plants come in order, so
-    contiguous halves left one thread with most of the work (2.9 s against 2.0 for the motion map's 252 plants
-    on two threads). Each plant is independent: the numbers do not depend on the order."""
+    contiguous halves left one thread with most of the work (the motion map's 252 plants on two threads took half
+    as long again; docs/performance.md). Each plant is independent: the numbers do not depend on the order."""
     n = P.shape[0]
     for j in prange(n_threads):
         for b in range(j, n, n_threads):

@@ -1,4 +1,4 @@
-"""Arguments of `millvib train` (kept apart so `millvib --help` stays fast)."""
+"""Arguments of `millvib train` and `millvib distill` (kept apart so `millvib --help` stays fast)."""
 
 from __future__ import annotations
 
@@ -58,5 +58,54 @@ def add_train_args(p: argparse.ArgumentParser, func) -> None:
                    help="learner library: sb3 (Stable-Baselines3, PyTorch) or sbx (its JAX port, PPO and SAC, same "
                         "hyperparameter files; pip install -e '.[sbx]'); auto (default): sbx for SAC where it is "
                         "installed, else sb3. A SAC trained with sbx is saved in SB3's format (it loads without JAX)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=func)
+
+
+def add_distill_args(p: argparse.ArgumentParser, func) -> None:
+    p.add_argument("--task", default="rolling", help="task: startup, rolling, change or varied (default rolling)")
+    p.add_argument("--teacher", default="mpc-preview", choices=["mpc-preview", "mpc-oracle"],
+                   help="the oracle that labels every loop sample (default mpc-preview)")
+    p.add_argument("--baseline", default=None, choices=["mpc-oracle"],
+                   help="label with the teacher's command less this oracle's, from the same state (what the "
+                        "preview adds), instead of less the digital PID's own command (default: the PID's)")
+    p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
+    p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
+    p.add_argument("--episodes", type=int, default=25,
+                   help="training episodes per iteration, 1-100 (default 25): the seed's 100 training plants in "
+                        "turn, visited again under the next students past the 100th")
+    p.add_argument("--epochs", type=int, default=30, help="least-squares epochs per iteration (default 30)")
+    p.add_argument("--budget", choices=("pool", "iteration"), default="iteration",
+                   help="an epoch's size: 'iteration', one iteration's worth of samples drawn from the pool (a "
+                        "constant cost per iteration; Adam's step 1e-3/sqrt(iteration); default), or 'pool', a pass "
+                        "over every pooled sample (the fit grows with each iteration; the students distilled before "
+                        "this option)")
+    p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
+                   help="each iteration's student is scored on the first N of the task's validation plants "
+                        "(default 40, as the shipped agents')")
+    p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
+                   help="the student's hidden layers (default 256 256)")
+    p.add_argument("--range-v", type=float, default=100.0,
+                   help="the residual's range in volts: action 1 adds this to the PID's command (default 100: "
+                        "enough to move the plant ahead of a step against the PID, which pulls back at 1.3 V per "
+                        "um; the amplifier still limits the sum to +-10 V)")
+    p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
+                   help="the student also reads the measured channels as they were K loop samples ago, for each K "
+                        "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
+    p.add_argument("--loop-sample", choices=("current", "previous"), default="current",
+                   help="the loop's sample the student reads (observation.loop_sample): 'current', the one its "
+                        "action joins at the controller (default), or 'previous', one sample older (the agents "
+                        "distilled before this option)")
+    p.add_argument("--preview", choices=("measured", "exact"), default="measured",
+                   help="the preview the student reads while it learns: measured, as an entry gauge gives it and the "
+                        "benchmark runs it (timing, force-model and noise errors, no eccentricity; default), or "
+                        "exact (the shipped students')")
+    p.add_argument("--on", default=None, choices=["pid-pf-preview"],
+                   help="the classical controller the residual sits on: pid-pf-preview, the classical controller of "
+                        "the student's own information (its tuned feedforward then runs in the environment, and the "
+                        "student learns what it misses within +-RANGE_V; use --range-v 10); default: the "
+                        "reference's PID alone")
+    p.add_argument("--save-dir", required=True, metavar="DIR",
+                   help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=func)

@@ -51,6 +51,8 @@ __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE
 DEFAULT_HISTORY = (1, 2, 4, 8, 16, 32)
 #: the loop's sample the student reads (`observation.loop_sample`): the one its action is added to
 DEFAULT_LOOP_SAMPLE = "current"
+#: the environment a student acts in
+ENV_ID = "MillVib-Valve-v1"
 
 
 def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0,
@@ -165,14 +167,8 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     `budget`: the fit's size at each iteration. "pool": `epochs` passes over all the pooled samples (the fit's cost
     grows with every iteration), Adam's step 1e-3; "iteration": `epochs` passes' worth of one iteration's samples,
     drawn from the whole pool, with Adam's step 1e-3 / sqrt(k) at iteration k (the network, warm from the last
-    iteration, is refitted at a constant cost and moves less as the pool grows; the default). Measured on the varied
-    mill's seed 0, two runs at a time on 2 cores: "pool" took 786 s for 10 iterations (the fit over all of 500 000
-    samples dominates the last), "iteration" 370 s for 16 (history to 64 samples), and its 1/sqrt(k) step settles
-    iterations 9-16 at validation costs 1.0055-1.0089 where a constant step wanders over 1.0064-1.0139."""
-    import gymnasium as gym
-    import torch
-    from stable_baselines3 import PPO
-
+    iteration, is refitted at a constant cost and moves less as the pool grows; the default). The two compared on
+    the varied mill: docs/performance.md ("The distillation's fit budget")."""
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
     seed = integer("seed", seed, lo=0, hi=49)
@@ -180,15 +176,43 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     episodes = integer("episodes", episodes, lo=1, hi=TRAIN_SEED_STRIDE)
     epochs = integer("epochs", epochs, lo=1, hi=1000)
     validation_episodes = integer("validation_episodes", validation_episodes, lo=1, hi=len(t.seeds["validation"]))
-    torch.manual_seed(seed)
-    env_id = "MillVib-Valve-v1"
+    import torch
 
+    torch.manual_seed(seed)
     if budget not in ("pool", "iteration"):
         raise ValueError(f"budget = {budget!r} is invalid: 'pool' or 'iteration'")
     range_v = real("range_v", range_v, lo=0.0, lo_open=True, hi=100.0)
     layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
     if preview_gauge not in ("measured", "exact"):
         raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
+    kwargs = _student_kwargs(t, preview, range_v, history, loop_sample, preview_gauge, on)
+    run = _Run(t, seed, episodes, epochs, budget, validation_episodes,
+               _card_maker(t, kwargs, seed, teacher, episodes, epochs, command, baseline, on, budget),
+               load_controller(teacher, t, version="v1"),
+               None if baseline is None else load_controller(baseline, t, version="v1"))
+    model, bar = run.start(kwargs, layers, iterations, progress, teacher)
+    start = time.time()
+    import tempfile
+
+    work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
+    for it in range(iterations):
+        run.iteration(it, model, kwargs, work, bar)
+    if bar is not None:
+        bar.close()
+    card = run.final_card(save_dir, start)
+    import shutil
+
+    with atomic_folder(Path(save_dir)) as tmp:
+        for name in ("model.zip", "vecnormalize.npz", "card.json"):
+            shutil.copyfile(run.best[0] / name, tmp / name)
+    shutil.rmtree(work, ignore_errors=True)
+    return card
+
+
+def _student_kwargs(t: Task, preview, range_v: float, history, loop_sample: str, preview_gauge: str,
+                    on: str | None) -> dict:
+    """The student's environment's keyword arguments; on a classical preview controller (`on`), its PID under the
+    residual and its tuned feedforward as the environment's ``actions.residual_feedforward``."""
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample,
                                 gauge=preview_gauge)
     if on is not None:
@@ -197,77 +221,96 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             raise ValueError(f"on = {on!r} is invalid: a classical preview controller ('pid-pf-preview') or None")
         kwargs["actions"] = {**kwargs["actions"], "residual_gains": list(base.env_kwargs["actions"]["residual_gains"]),
                              "residual_feedforward": base.feedforward_gains()}
-    card_kwargs = {"config": t.config, **kwargs}  # the card alone rebuilds the environment (the plain SB3 recipe)
-    teacher_ctrl = load_controller(teacher, t, version="v1")
-    baseline_ctrl = None if baseline is None else load_controller(baseline, t, version="v1")
-    env = gym.make(env_id, config=t.config, **kwargs)
-    model = PPO("MlpPolicy", env, seed=seed, device="cpu", verbose=0,
-                policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(layers), vf=[64, 64])))
-    first = t.train_env_seed(seed)
-    val_first = t.seeds["validation"].start
-    save_dir = Path(save_dir)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-        unwrapped: Any = env.unwrapped  # a millvib env: its core (envs.core.MillVibCore) knows the episode
-        bar = tqdm(total=iterations * episodes * unwrapped.core.max_steps, unit="step",
-                   desc=f"distill {teacher} on {t.name}")
-    X_all, Y_all = [], []
-    student, stats = None, None
-    history = []
-    best = None
-    start = time.time()
-    import tempfile
+    return kwargs
 
-    work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
-    for it in range(iterations):
+
+def _card_maker(t: Task, kwargs: dict, seed: int, teacher: str, episodes: int, epochs: int, command, baseline, on,
+                budget: str):
+    """card(iteration, samples, mse): the card of the student of an iteration; its env_kwargs name the task's
+    config, so that the card alone rebuilds the environment (the plain SB3 recipe)."""
+    card_kwargs = {"config": t.config, **kwargs}
+
+    def card(iteration: int, samples: int, mse: float) -> dict:
+        return _card(t.name, ENV_ID, card_kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
+                     baseline, on, budget)
+    return card
+
+
+class _Run:
+    """One distillation's iterations: the pool of labelled samples, each iteration's validation and the best."""
+
+    def __init__(self, t: Task, seed: int, episodes: int, epochs: int, budget: str, validation_episodes: int,
+                 card, teacher, baseline):
+        self.t, self.seed, self.episodes, self.epochs, self.budget = t, seed, episodes, epochs, budget
+        self.validation_episodes, self.card, self.teacher, self.baseline = validation_episodes, card, teacher, baseline
+        self.X_all: list[np.ndarray] = []
+        self.Y_all: list[np.ndarray] = []
+        self.student: Any = None
+        self.stats: ObsStats | None = None
+        self.history: list[dict] = []
+        self.best: Any = None
+
+    def start(self, kwargs: dict, layers: list[int], iterations: int, progress: bool, teacher: str):
+        """The student's SB3 PPO model (its actor is the student) and the progress bar (None: none)."""
+        import gymnasium as gym
+        from stable_baselines3 import PPO
+
+        env = gym.make(ENV_ID, config=self.t.config, **kwargs)
+        model = PPO("MlpPolicy", env, seed=self.seed, device="cpu", verbose=0,
+                    policy_kwargs=dict(log_std_init=-3.0, net_arch=dict(pi=list(layers), vf=[64, 64])))
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+            unwrapped: Any = env.unwrapped  # a millvib env: its core (envs.core.MillVibCore) knows the episode
+            bar = tqdm(total=iterations * self.episodes * unwrapped.core.max_steps, unit="step",
+                       desc=f"distill {teacher} on {self.t.name}")
+        return model, bar
+
+    def iteration(self, it: int, model, kwargs: dict, work: Path, bar) -> None:
+        """DAgger's iteration `it`: roll the student out (labels by the teacher), pool, refit, validate."""
+        t, episodes = self.t, self.episodes
         # the seed's training plants in turn; past its 100, they come round again (the same plant and disturbances,
         # the new student's states: DAgger's next visit)
+        first = t.train_env_seed(self.seed)
         seeds = [first + (it * episodes + j) % TRAIN_SEED_STRIDE for j in range(episodes)]
-        X, Y = _rollout(student, teacher_ctrl, env_id, kwargs, t, seeds, stats, bar, baseline_ctrl)
-        X_all.append(X)
-        Y_all.append(Y)
-        Xc, Yc = np.concatenate(X_all), np.concatenate(Y_all)
+        X, Y = _rollout(self.student, self.teacher, ENV_ID, kwargs, t, seeds, self.stats, bar, self.baseline)
+        self.X_all.append(X)
+        self.Y_all.append(Y)
+        Xc, Yc = np.concatenate(self.X_all), np.concatenate(self.Y_all)
         _say(bar, f"iteration {it + 1}: fitting the student to {len(Yc)} samples")
-        stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)), 10.0, 1e-8)
-        if budget == "pool":
-            mse = _fit(model, Xc, Yc, stats, epochs, seed + it)
+        stats = self.stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)),
+                                      10.0, 1e-8)
+        if self.budget == "pool":
+            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it)
         else:  # one iteration's worth of samples an epoch, and a step that shrinks as the pool grows
-            mse = _fit(model, Xc, Yc, stats, epochs, seed + it, per_epoch=len(Y), lr=1e-3 / np.sqrt(it + 1))
+            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, per_epoch=len(Y), lr=1e-3 / np.sqrt(it + 1))
         policy = model.policy
-        student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))  # noqa: E731
+        self.student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
-        card = _card(t.name, env_id, card_kwargs, seed, teacher, it + 1, episodes, epochs, len(Yc), mse, command,
-                     baseline, on, budget)
+        val_first = t.seeds["validation"].start
         _say(bar, f"iteration {it + 1}: scoring it on validation plants {val_first}-"
-                  f"{val_first + validation_episodes - 1}")
-        val = validation_result(folder, card, episodes=validation_episodes)
-        history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse, **val})
-        if best is None or val["cost_mean"] < best[1]["cost_mean"]:
-            best = (folder, val, it + 1)
-        _say(bar, f"iteration {it + 1}: cost {val['cost_mean']:.4g}; best {best[1]['cost_mean']:.4g} "
-                  f"(iteration {best[2]})")
-    if bar is not None:
-        bar.close()
-    assert best is not None  # iterations >= 1: every iteration is validated
-    folder, val, it = best
-    card = _card(t.name, env_id, card_kwargs, seed, teacher, it, episodes, epochs, history[it - 1]["samples"],
-                 history[it - 1]["fit_mse"], command, baseline, on, budget)
-    card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
-    card.update({"validation": val, "iterations": history, "wall_time_s": round(time.time() - start, 1),
-                 "n_timesteps": int(history[it - 1]["samples"]),  # the loop samples its student was fitted on
-                 "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
-                                                      "(iteration 0, the reference alone, never among them)"}})
-    write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
+                  f"{val_first + self.validation_episodes - 1}")
+        val = validation_result(folder, self.card(it + 1, len(Yc), mse), episodes=self.validation_episodes)
+        self.history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse, **val})
+        if self.best is None or val["cost_mean"] < self.best[1]["cost_mean"]:
+            self.best = (folder, val, it + 1)
+        _say(bar, f"iteration {it + 1}: cost {val['cost_mean']:.4g}; best {self.best[1]['cost_mean']:.4g} "
+                  f"(iteration {self.best[2]})")
 
-    import shutil
-
-    with atomic_folder(save_dir) as tmp:
-        for name in ("model.zip", "vecnormalize.npz", "card.json"):
-            shutil.copyfile(folder / name, tmp / name)
-    shutil.rmtree(work, ignore_errors=True)
-    return card
+    def final_card(self, save_dir, start: float) -> dict:
+        """The best iteration's card, written into its folder: its validation, every iteration's, the run's time."""
+        assert self.best is not None  # iterations >= 1: every iteration is validated
+        folder, val, it = self.best
+        card = self.card(it, self.history[it - 1]["samples"], self.history[it - 1]["fit_mse"])
+        save_dir = Path(save_dir)
+        card["name"] = save_dir.parent.name if save_dir.name.startswith("seed-") else save_dir.name
+        card.update({"validation": val, "iterations": self.history, "wall_time_s": round(time.time() - start, 1),
+                     "n_timesteps": int(self.history[it - 1]["samples"]),  # the loop samples its student was fitted on
+                     "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
+                                                          "(iteration 0, the reference alone, never among them)"}})
+        write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
+        return card
 
 
 def _write_agent(folder: Path, model, stats, card: dict) -> None:

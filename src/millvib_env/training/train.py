@@ -22,7 +22,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +41,7 @@ from millvib_env.tasks import Task, takes_task
 from millvib_env.threads import serial_unless_set
 from millvib_env.evaluation.benchmark import summarize
 from millvib_env.evaluation.evaluate import run_episodes
+from millvib_env.training.callbacks import evaluation, warmup
 from millvib_env.training.hyperparams import load_hyperparams
 
 __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolve_named_gains", "ALGOS"]
@@ -49,49 +50,6 @@ __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolv
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
-
-
-def _fixed_plants_eval(base, venv, eval_env, eval_seed: int, best_dir: Path, **kwargs):
-    """An EvalCallback (`base`) that evaluates on the same plants every time (its env reseeded with
-    `eval_seed` before each evaluation), keeps the observation statistics of its best policy beside
-    it (best_dir/vecnormalize.npz), and can evaluate the starting policy (`evaluate_start`)."""
-    from stable_baselines3.common.evaluation import evaluate_policy
-    from stable_baselines3.common.vec_env import VecNormalize, sync_envs_normalization
-
-    class FixedPlantsEval(base):
-        best_timesteps = 0
-
-        def _on_step(self) -> bool:
-            if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
-                self.eval_env.seed(eval_seed)
-                before = self.best_mean_reward
-                ok = super()._on_step()
-                if self.best_mean_reward > before:
-                    self._keep_best(self.num_timesteps)
-                return ok
-            return super()._on_step()
-
-        def _keep_best(self, timesteps: int) -> None:
-            self.best_timesteps = timesteps
-            if isinstance(venv, VecNormalize):
-                best_dir.mkdir(parents=True, exist_ok=True)
-                save_obs_stats(venv, best_dir / STATS_FILE)
-
-        def evaluate_start(self, model) -> None:
-            if isinstance(venv, VecNormalize):
-                sync_envs_normalization(venv, self.eval_env)
-            self.eval_env.seed(eval_seed)
-            rewards, lengths = evaluate_policy(model, self.eval_env, n_eval_episodes=self.n_eval_episodes,
-                                               deterministic=True, return_episode_rewards=True)
-            self.best_mean_reward = float(np.mean(rewards))
-            self.evaluations_timesteps.append(0)  # the curve starts at the starting policy
-            self.evaluations_results.append([float(r) for r in cast(list, rewards)])
-            self.evaluations_length.append([int(n) for n in cast(list, lengths)])
-            best_dir.mkdir(parents=True, exist_ok=True)
-            model.save(best_dir / "best_model.zip")
-            self._keep_best(0)
-
-    return FixedPlantsEval(eval_env, **kwargs)
 
 
 def _agent_env_kwargs(raw, task: Task, version: str) -> dict:
@@ -208,20 +166,6 @@ def _resume_from(cls, folder: Path, venv, normalized: bool, tb: str):
                      "statistics file)")
 
 
-def _continue_evaluations(callback, log_path: Path) -> None:
-    """Give a resumed run's EvalCallback the earlier evaluations and best reward, so its history and
-    best model continue instead of restarting."""
-    path = log_path / EVAL_CURVE
-    if not path.is_file():
-        return
-    with np.load(path, allow_pickle=False) as data:
-        callback.evaluations_timesteps = [int(t) for t in data["timesteps"]]
-        callback.evaluations_results = [list(r) for r in data["results"]]
-        callback.evaluations_length = [list(r) for r in data["ep_lengths"]]
-    if callback.evaluations_results:
-        callback.best_mean_reward = float(max(np.mean(r) for r in callback.evaluations_results))
-
-
 def train(algo: str, env_id: str = "MillVib-GainSchedule-v1", **kwargs) -> dict:
     """Train one agent; returns its model card (also written to the run folder). Keyword arguments
     as `_train`. The plant runs serially unless MILLVIB_NUM_THREADS says otherwise: the learner
@@ -241,9 +185,9 @@ def _check_id_runs_task(env_id: str, task) -> None:
 
 
 def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs: dict | None, env_id: str,
-                 env_kwargs: dict, what: str):
+                 env_kwargs: dict, what: str, source=None):
     """A new model on `venv` (wrapped in VecNormalize where the file asks), starting at the zero action where
-    that action is a controller; returns (model, venv)."""
+    that action is a controller, or from `source` (`_start_from`); returns (model, venv)."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     if norm_kwargs is not None:
@@ -251,6 +195,7 @@ def _fresh_model(cls, policy, venv, seed: int, run: Path, hp: dict, norm_kwargs:
     model = _new_model(cls, policy, venv, seed, run, hp, what)
     if _zero_action_is_a_controller(env_id, env_kwargs):
         start_at_zero_action(model)
+    _start_from(model, venv, source)
     return model, venv
 
 
@@ -283,8 +228,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     if select not in ("last", "best", "trained"):
         raise ValueError(f"--select {shown(select)} is invalid: 'last', 'best' or 'trained'")
     import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
-    from stable_baselines3.common.vec_env import VecNormalize
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     from millvib_env.envs.vec_env import make_vec_env
 
@@ -297,55 +241,72 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     validation_episodes = integer("--validation-episodes", validation_episodes, lo=1,
                                   hi=len(the_task.seeds["validation"]))  # never a held-out plant
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
-    hp = load_hyperparams(algo, env_id, config)
-    n_envs = int(hp.pop("n_envs"))
-    total = int(n_timesteps if n_timesteps is not None else hp.pop("n_timesteps"))
-    hp.pop("n_timesteps", None)
-    policy = hp.pop("policy")
-    normalize = hp.pop("normalize", None)
+    hp, n_envs, total, policy, normalize = _hyperparams(algo, env_id, config, n_timesteps)
     env_kwargs = _agent_env_kwargs(hp.pop("env_kwargs", None), the_task, env_version(env_id))
     source, env_kwargs = _init_source(init_from, resume, algo, env_id, the_task, env_kwargs)
     torch.set_num_threads(1)  # small networks: threads cost more than they give
 
-    run = Path(log_dir) / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
-                           else f"{algo}_{env_id}_{the_task.name}_s{seed}")
+    run = _run_folder(Path(log_dir), algo, env_id, the_task, seed, total, save_dir, progress)
     ckpt_dir = run / "checkpoints"
-    run.mkdir(parents=True, exist_ok=True)
-    if progress:  # where the run writes, before it starts (stderr: stdout ends with the card's JSON)
-        print(f"train: {algo} on {env_id} ({the_task.name}, seed {seed}, {total} steps): logs and checkpoints in "
-              f"{run}" + (f", the agent to {save_dir}" if save_dir else ""), file=sys.stderr, flush=True)
     venv = make_vec_env(env_id, n_envs, seed=train_seed, **env_kwargs)
     eval_env = make_vec_env(env_id, n_eval_episodes, seed=eval_seed, **env_kwargs)
     norm_kwargs = normalize  # `load_hyperparams` read every form as VecNormalize's keywords, or None
     if resume:
         model, venv, done_steps = _resume_from(cls, ckpt_dir, venv, norm_kwargs is not None, str(run / "tb"))
     else:
-        model, venv = _fresh_model(cls, policy, venv, seed, run, hp, norm_kwargs, env_id, env_kwargs,
-                                   f"{algo} on {env_id} ({config or 'the default file'})")
-        _start_from(model, venv, source)
-        done_steps = 0
+        (model, venv), done_steps = _fresh_model(cls, policy, venv, seed, run, hp, norm_kwargs, env_id, env_kwargs,
+                                                 f"{algo} on {env_id} ({config or 'the default file'})", source), 0
     if backend == "sbx":
         jit_noise_key_split(model)
-    if norm_kwargs is not None:
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
-                                                                                if k not in ("norm_reward",)})
-    eval_cb = _fixed_plants_eval(EvalCallback, venv, eval_env, eval_seed, run / "best",
-                                 n_eval_episodes=n_eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
-                                 best_model_save_path=str(run / "best"), log_path=str(run / "eval"),
-                                 deterministic=True, verbose=0)
-    if resume:
-        _continue_evaluations(eval_cb, run / "eval")
-    elif select == "best":
-        eval_cb.evaluate_start(model)
+    eval_env, eval_cb = evaluation(model, venv, eval_env, eval_seed, run, norm_kwargs, n_eval_episodes,
+                                    max(eval_freq // n_envs, 1), resume, select)
     callbacks = CallbackList([
         CheckpointCallback(max(checkpoint_freq // n_envs, 1), str(ckpt_dir), save_vecnormalize=True), eval_cb,
-        *_warmup(critic_warmup, algo)])
+        *warmup(critic_warmup, algo)])
     start = time.time()
     model.learn(total_timesteps=max(total - done_steps, 0), callback=callbacks, progress_bar=progress,
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
     selected = _keep_policy(run, model, venv, eval_cb, select)
     model_format = _portable_model(run, cls, algo, backend)
+    card = _run_card(algo, env_id, the_task, backend, model_format, env_kwargs, seed, model, n_envs, wall, command,
+                     hp, policy, normalize, run, selected, n_eval_episodes, select, note, init_from, source,
+                     critic_warmup)
+    _validated(card, run, the_task, validation_episodes, progress)
+    if save_dir:
+        _save_agent(Path(save_dir), run, card)
+    venv.close()
+    eval_env.close()
+    return card
+
+
+def _hyperparams(algo: str, env_id: str, config: str | None, n_timesteps: int | None):
+    """The file's hyperparameters for `env_id`: (the learner's keywords, n_envs, the steps to train, the policy, the
+    VecNormalize keywords or None)."""
+    hp = load_hyperparams(algo, env_id, config)
+    n_envs = int(hp.pop("n_envs"))
+    total = int(n_timesteps if n_timesteps is not None else hp.pop("n_timesteps"))
+    hp.pop("n_timesteps", None)
+    return hp, n_envs, total, hp.pop("policy"), hp.pop("normalize", None)
+
+
+def _run_folder(log_dir: Path, algo: str, env_id: str, the_task: Task, seed: int, total: int, save_dir,
+                progress: bool) -> Path:
+    """The run's folder (logs, checkpoints, evaluations), made; with `progress`, said before the run starts (stderr:
+    stdout ends with the card's JSON)."""
+    run = log_dir / (f"{algo}_{env_id}_s{seed}" if the_task.name == "startup"
+                     else f"{algo}_{env_id}_{the_task.name}_s{seed}")
+    run.mkdir(parents=True, exist_ok=True)
+    if progress:
+        print(f"train: {algo} on {env_id} ({the_task.name}, seed {seed}, {total} steps): logs and checkpoints in "
+              f"{run}" + (f", the agent to {save_dir}" if save_dir else ""), file=sys.stderr, flush=True)
+    return run
+
+
+def _run_card(algo, env_id, the_task, backend, model_format, env_kwargs, seed, model, n_envs, wall, command, hp,
+              policy, normalize, run, selected, n_eval_episodes, select, note, init_from, source,
+              critic_warmup) -> dict:
+    """The trained agent's card (before its validation): what ran, how long, and what was kept."""
     evals = np.load(run / "eval" / EVAL_CURVE) if (run / "eval" / EVAL_CURVE).exists() else None
     suffix = "" if the_task.name == "startup" else f"-{the_task.name}"
     card = {"name": f"{algo}-{'gain' if 'Gain' in env_id else 'valve'}{suffix}", "algo": algo, "env_id": env_id,
@@ -369,6 +330,11 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
                                "trained_by": source.card.get("trained_by", source.card.get("command")),
                                "critic_warmup_steps": int(critic_warmup)}}
                 if source is not None else {})  # the card says what it started from
+    return card
+
+
+def _validated(card: dict, run: Path, the_task: Task, validation_episodes: int, progress: bool) -> None:
+    """Write the card, score the agent on the task's first validation plants, and write it again with them."""
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
     if progress:  # a few seconds with no bar: say what they are
         first = the_task.seeds["validation"].start
@@ -376,41 +342,6 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
               f"{first + validation_episodes - 1}", file=sys.stderr, flush=True)
     card["validation"] = validation_result(run, card, episodes=validation_episodes)
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
-    if save_dir:
-        _save_agent(Path(save_dir), run, card)
-    venv.close()
-    eval_env.close()
-    return card
-
-
-def _warmup(steps: int, algo: str) -> list:
-    """The callback that holds a PPO's actor (its layers and log std) while the first `steps` train the critic."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    steps = integer("--critic-warmup", steps, lo=0, hi=10**9)
-    if steps == 0:
-        return []
-    if algo != "ppo":
-        raise ValueError(f"--critic-warmup {steps} is for PPO (--init-from a student), not {algo}")
-
-    class ActorHeld(BaseCallback):
-        def _actor(self):
-            p = self.model.policy
-            return [*p.mlp_extractor.policy_net.parameters(), *p.action_net.parameters(), p.log_std]
-
-        def _on_training_start(self) -> None:
-            for t in self._actor():
-                t.requires_grad_(False)
-
-        def _on_rollout_end(self) -> None:
-            if self.model.num_timesteps >= steps:
-                for t in self._actor():
-                    t.requires_grad_(True)
-
-        def _on_step(self) -> bool:
-            return True
-
-    return [ActorHeld()]
 
 
 def _init_source(init_from: str | None, resume: bool, algo: str, env_id: str, task: Task, env_kwargs: dict):
