@@ -53,7 +53,7 @@ def main(argv: list[str]) -> int:
                    f"{pct(s['severity']['cost_diff_rel'], s['severity']['ci'])}" + \
                    (", tracking flag" if s["tracking_flag"] else "")
             taken = -s["cost"]["cost_diff_rel"] / pre["room_mean"]
-            share = f"{taken:.0%}" if taken > 0 else "none (dearer)"
+            share = f"{100 * taken:.1f} %" if taken > 0 else "none (dearer)"
         else:
             gain, share = "-", "-"
         loop = []
