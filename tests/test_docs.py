@@ -96,6 +96,16 @@ def test_every_path_and_module_named_in_the_docs_and_configs_exists():
     assert not missing, missing
 
 
+def test_the_architecture_page_names_every_module_of_the_package():
+    """docs/architecture.md's map cannot drift from the code: every module under src/millvib_env (its file's stem)
+    is named on the page."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    named = set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", text))
+    unnamed = [p.relative_to(ROOT).as_posix() for p in sorted((ROOT / "src" / "millvib_env").rglob("*.py"))
+               if p.name != "__init__.py" and p.stem not in named]
+    assert not unnamed, f"docs/architecture.md does not name {unnamed}"
+
+
 #: the package's modules that a function may import inside itself: laziness is the point (torch and SB3,
 #: scipy.signal, matplotlib) (docs/architecture.md, "Imports at the top")
 LAZY_MODULES = {"millvib_env.envs.vec_env", "millvib_env.analysis.dynamics", "millvib_env.analysis.paper",
