@@ -106,6 +106,27 @@ def test_the_architecture_page_names_every_module_of_the_package():
     assert not unnamed, f"docs/architecture.md does not name {unnamed}"
 
 
+def test_outside_envs_no_code_reads_the_engines_arrays():
+    """What controllers, evaluation and training read of `MillVibCore` goes through its declared reads
+    (`envs.reads.EpisodeReads`): outside envs/ no code names one of the engine's arrays on a core (`core.Y`,
+    `self.core.XD`, `venv.core.CS`, ...)."""
+    import numpy as np
+
+    from millvib_env.envs.batch import EpisodeBatch
+
+    core = EpisodeBatch("MillVib-Valve-v1", 1, config="rolling").core
+    arrays = {name for name, value in vars(core).items() if isinstance(value, np.ndarray)}
+    assert {"Y", "XD", "DFL", "CS", "YS", "AUXS", "k", "u_ff"} <= arrays  # the scan below knows what it looks for
+    found = []
+    for path in sorted((ROOT / "src" / "millvib_env").rglob("*.py")):
+        if path.parent.name == "envs":
+            continue
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            found += [f"{path.relative_to(ROOT)}:{n} core.{name}" for name in re.findall(r"\b_?core\.(\w+)", line)
+                      if name in arrays]
+    assert not found, found
+
+
 #: the package's modules that a function may import inside itself: laziness is the point (torch and SB3,
 #: scipy.signal, matplotlib) (docs/architecture.md, "Imports at the top")
 LAZY_MODULES = {"millvib_env.envs.vec_env", "millvib_env.analysis.dynamics", "millvib_env.analysis.paper",

@@ -118,8 +118,9 @@ def expect_modules(*names: str) -> Iterator[None]:
 def _pool_context(fn: Callable, preload: Sequence[str] = ()):
     """How the workers start: from multiprocessing's fork server where the platform has one (POSIX), else spawned.
 
-    A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again, at every pool (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by
-    the first pool of this process, that imports once the package, the module of the pool's function, the
+    A spawned worker is a new interpreter that imports the package, numpy, scipy and numba again, at every pool
+    (`millvib reproduce --jobs N` starts three). The fork server is one clean process, started by the first pool
+    of this process, that imports once the package, the module of the pool's function, the
     modules in `preload` (torch for training) and those a command declared (`expect_modules`), and sets up
     numba's compiler context (`millvib_env._fork_server`); every worker
     after that is a fork of it, so it starts with those modules imported and inherits no thread pool, torch

@@ -339,9 +339,9 @@ class MPCPolicy(Controller):
         core = self._core
         assert core.loop is not None  # attach checks it
         dt = core.loop.dt_s
-        k = core.k[idx] * core.n_sub
-        t = core.T[idx]
-        last = core.XD.shape[1] - 1
+        k = core.control_sample(idx)
+        t = core.time_now(idx)
+        last = core.course_samples - 1
         if self.settings.preview:
             steps = self._steps.get(N)
             if steps is None or steps[2] != dt:
@@ -356,11 +356,12 @@ class MPCPolicy(Controller):
             tm = np.repeat(t[:, None], N + 1, axis=1)
         rows = idx[:, None]
         e = np.empty((len(idx), N + 1, 3))
-        e[:, :, 0] = core.DFL[rows, at] + core._eccentricity(rows, tm)  # the force steps and the eccentricity
+        e[:, :, 0] = core.force_course(rows, at, tm)  # the force steps and the eccentricity
         for j, i in enumerate(idx):
-            p = core.P[i]
+            p = core.plant_pack(i)
             e[j, :, 1] = supply_ripple(tm[j], p) if p[P_PA] != 0.0 else 0.0
-        e[:, :, 2] = core.XD[rows, np.minimum(at + 1, last)] - xd0[:, None]  # the set-point at the step's end
+        # the set-point at each step's end
+        e[:, :, 2] = core.setpoint_course(rows, np.minimum(at + 1, last)) - xd0[:, None]
         return e
 
     def teacher_commands(self, idx: np.ndarray | None = None) -> np.ndarray:
@@ -376,8 +377,8 @@ class MPCPolicy(Controller):
         core = self._core
         assert core.loop is not None  # attach checks it
         idx = np.arange(core.n) if idx is None else np.asarray(idx, dtype=np.intp)
-        last = core.XD.shape[1] - 1
-        xd_now = core.XD[idx, np.minimum(core.k[idx] * core.n_sub, last)]
+        last = core.course_samples - 1
+        xd_now = core.setpoint_course(idx, np.minimum(core.control_sample(idx), last))
         models = [self._model(int(i), float(x)) for i, x in zip(idx, xd_now)]
         st = self._stack
         whole = len(idx) == core.n and bool(np.all(idx == np.arange(core.n)))
@@ -388,7 +389,8 @@ class MPCPolicy(Controller):
 
         Ad, Bd, Ed, u0 = st["Ad"][sel], st["Bd"][sel], st["Ed"][sel], st["u0"][sel]
         N = st["G_s"].shape[1]
-        y_kept = core.Y[idx][:, st["keep"]]
+        y_now = core.plant_state(idx)
+        y_kept = y_now[:, st["keep"]]
         y0 = st["y0"][sel]
         s = np.empty((len(idx), len(st["keep"]) + 1))
         s[:, :-1] = y_kept - y0
@@ -410,11 +412,11 @@ class MPCPolicy(Controller):
         w = np.where(has_w[:, None], w, 0.0)
         delayed = core.loop.delay_samples > 0
         if delayed:  # the command held over [t_k, t_(k+1)] was computed a sample ago
-            held = core.CS[idx, K_UPEND]
+            held = core.controller_state(idx, K_UPEND)
             s = mv(Ad, s) + Bd * (held - u0)[:, None] + mv(Ed, e[:, 0]) + w
             e_h = e[:, 1:]
         else:
-            held = core.CS[idx, K_UAPP]
+            held = core.controller_state(idx, K_UAPP)
             e_h = e[:, :-1]
         q = mv(st["G_s"][sel], s) + mv(st["G_e"][sel], e_h.reshape(len(idx), -1)) \
             + st["G_u"][sel] * (held - u0)[:, None] + mv(st["G_w"][sel], w)
@@ -429,7 +431,7 @@ class MPCPolicy(Controller):
         umax = st["umax"][sel]
         u = np.minimum(np.maximum(u0 + du, -umax), umax)
         # the integral of the position error, as the model counts it (true position, no noise)
-        self._xi[idx] += core.loop.dt_s * (xd_now - core.Y[idx, IX])
+        self._xi[idx] += core.loop.dt_s * (xd_now - y_now[:, IX])
         # the model's prediction of the next sample's plant state, absolute (a rebuilt model keeps it)
         nxt = s if delayed else mv(Ad, s) + Bd * (u - u0)[:, None] + mv(Ed, e[:, 0]) + w
         st["pred"][idx] = nxt[:, :-1] + y0

@@ -33,6 +33,7 @@ from millvib_env.envs.gauge import gauge_force
 from millvib_env.envs.metrics import record_levels
 from millvib_env.envs.observation import Observer
 from millvib_env.envs.period import record_actuator, summarize_period
+from millvib_env.envs.reads import EpisodeReads
 from millvib_env.envs.reward import Reward
 from millvib_env.loop import kernel as loop_kernel
 from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS, peek_samples
@@ -59,7 +60,7 @@ TRANSIENT_S = 0.1
 MAX_BATCH_BYTES = 4 * 2**30
 
 
-class MillVibCore:
+class MillVibCore(EpisodeReads):
     """N episodes of the screw-down plant in one of two modes: 'gain' or 'valve'."""
 
     def __init__(self, n: int, mode: str, config: EnvConfig, *, residual: bool = False,
@@ -500,11 +501,6 @@ class MillVibCore:
         step of the period just integrated plus the roll eccentricity at the current time."""
         col = np.clip(self.k[idx] * self.n_sub - 1, 0, self.DFL.shape[1] - 1)
         return self.DFL[idx, col] + self._eccentricity(idx, self.T[idx])
-
-    def _eccentricity(self, idx, t):
-        """The roll eccentricity's force (N) at times t, as `plant_rhs` applies it (`idx`: an environment
-        or an array of them)."""
-        return self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * t + self.C[idx, C_EP])
 
     def _users_envelope(self, x_abs, pl_lo, pl_hi, last, terminated) -> np.ndarray:
         """Whether each environment left the user's envelope (`envs.envelope`) in this period."""

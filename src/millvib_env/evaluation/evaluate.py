@@ -17,7 +17,7 @@ from millvib_env._checks import choice, instance, integer, integers, real, shown
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import ENV_IDS, EpisodeBatch
 from millvib_env.envs.reward import DIVERGED_COST
-from millvib_env.plant.model import A_ACC, A_U, IV, IX
+from millvib_env.plant.model import IV, IX
 from millvib_env.tasks import Task, takes_task
 
 __all__ = ["run_episodes", "episode_cost", "scored_cost", "COST_SCALES", "EpisodeRecord", "RECORD_FIELDS",
@@ -157,7 +157,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     while any(r is None for r in records):
         action, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         # the step that ends every episode still running restarts none: a new episode's draw would be discarded
-        last = all(r is not None or core.k[i] + 1 >= core.max_steps for i, r in enumerate(records))
+        last = all(r is not None or core.steps_taken(i) + 1 >= core.max_steps for i, r in enumerate(records))
         obs, dones, infos = venv.step(action, restart=not last)
         episode_start = dones
         controller.on_step(infos)
@@ -204,23 +204,21 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     obs = venv.reset([seed], {"scenario": scenario} if scenario is not None else None)
     controller.on_reset(venv.reset_infos, [0])
     core = venv.core
-    parts: dict[str, list] = {"x": [core.Y[:1, IX].copy()], "v": [core.Y[:1, IV].copy()], "a": [np.zeros(1)],
-                              "u": [np.zeros(1)], "xd": [core.XD[0, :1].copy()]}
+    y0 = core.plant_state(slice(0, 1))
+    parts: dict[str, list] = {"x": [y0[:, IX]], "v": [y0[:, IV]], "a": [np.zeros(1)], "u": [np.zeros(1)],
+                              "xd": [core.setpoint_course(0, slice(0, 1))]}
     gains, state, start = [], None, np.ones(1, dtype=bool)
     while True:
         action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
         if core.mode == "gain":
             gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0][:3])
-        xd = np.repeat(core.XD[0, core.k[0] * core.n_sub + np.arange(core.n_sub)], core.spp)  # before an auto-reset
+        xd = core.period_setpoint(0)  # before an auto-reset
         obs, done, infos = venv.step(action)
         start = done
         controller.on_step(infos)
-        n = core.n_samp
         parts["xd"].append(xd)
-        parts["x"].append(core.YS[0, 1:n + 1, IX].copy())
-        parts["v"].append(core.YS[0, 1:n + 1, IV].copy())
-        parts["a"].append(core.AUXS[0, 1:n + 1, A_ACC].copy())
-        parts["u"].append(core.AUXS[0, 1:n + 1, A_U].copy())
+        for key, samples in core.period_trace(0).items():
+            parts[key].append(samples)
         if done[0]:
             break
     out: dict[str, Any] = {k: np.concatenate(v) for k, v in parts.items()}

@@ -41,7 +41,6 @@ from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import ObsStats
 from millvib_env.control.preview import DEFAULT_PREVIEW, preview_env_kwargs
 from millvib_env.envs.batch import EpisodeBatch
-from millvib_env.loop.kernel import K_UCTRL
 from millvib_env.tasks import TRAIN_SEED_STRIDE, Task, takes_task
 from millvib_env.training.train import N_VALIDATION, validation_result
 
@@ -94,7 +93,7 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
         obs, dones, infos = venv.step(action)
         # the digital PID's own command at the sample just taken, and the classical feedforward under the residual
         # (`actions.residual_feedforward`; zero without one), from the observation the action was taken on
-        u_pid = core.CS[:, K_UCTRL] + core.u_ff
+        u_pid = core.loop_command()
         ys.append(np.clip((u_t - (u_pid if u_b is None else u_b)) / u_range, -1.0, 1.0)[:, None])
         teacher.on_step(infos)
         if progress is not None:

@@ -1,0 +1,96 @@
+"""The declared reads of the episodes under way: what code outside envs/ reads of `envs.core.MillVibCore`.
+
+Controllers that read the plant (the MPC oracles, as controllers and as teachers), the evaluation's traces and the
+distillation's labels read the episodes through these methods only, never the engine's arrays (a test holds it):
+each returns a copy or a value computed from them, so a reader can neither change an episode nor depend on how
+the engine lays out its state."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from millvib_env.loop.kernel import K_UCTRL
+from millvib_env.plant.model import A_ACC, A_U, C_EA, C_EP, C_EW, IV, IX
+
+__all__ = ["EpisodeReads"]
+
+
+class EpisodeReads:
+    """The read interface `MillVibCore` gives its readers (module docstring). `idx` and `rows`: an environment or
+    an array of them (numpy's indexing); `cols`: control samples of the episode's courses."""
+
+    # the engine's arrays these reads are made from (`MillVibCore._allocate_state` makes them)
+    Y: np.ndarray
+    C: np.ndarray
+    T: np.ndarray
+    k: np.ndarray
+    P: np.ndarray
+    XD: np.ndarray
+    DFL: np.ndarray
+    CS: np.ndarray
+    YS: np.ndarray
+    AUXS: np.ndarray
+    u_ff: np.ndarray
+    n_sub: int
+    spp: int
+    n_samp: int
+
+    def _eccentricity(self, idx: Any, t: Any) -> np.ndarray:
+        """The roll eccentricity's force (N) at times t, as `plant_rhs` applies it."""
+        return self.C[idx, C_EA] * np.sin(self.C[idx, C_EW] * t + self.C[idx, C_EP])
+
+    def plant_state(self, idx: Any) -> np.ndarray:
+        """The plant's state now (`plant.model`'s states, in its order) of environments `idx`."""
+        return np.array(self.Y[idx])
+
+    def time_now(self, idx: Any) -> np.ndarray:
+        """The plant's time now (s) of environments `idx`."""
+        return np.array(self.T[idx])
+
+    def steps_taken(self, i: int) -> int:
+        """The agent steps environment i's episode has taken."""
+        return int(self.k[i])
+
+    def control_sample(self, idx: Any) -> np.ndarray:
+        """The control sample each of environments `idx` is at: its column in the episode's courses."""
+        return self.k[idx] * self.n_sub
+
+    @property
+    def course_samples(self) -> int:
+        """The control samples of an episode's courses (set-point, force steps): one period past its end."""
+        return int(self.XD.shape[1])
+
+    def setpoint_course(self, rows: Any, cols: Any) -> np.ndarray:
+        """The set-point (m) of environments `rows` at control samples `cols` (the pass schedule's course)."""
+        return np.array(self.XD[rows, cols])
+
+    def force_course(self, rows: Any, cols: Any, t: Any) -> np.ndarray:
+        """The rolling force's deviation (N) of environments `rows`: its steps at control samples `cols` and the
+        rolls' eccentricity at times `t` (s), as `plant_rhs` applies them."""
+        return self.DFL[rows, cols] + self._eccentricity(rows, t)
+
+    def plant_pack(self, i: int) -> np.ndarray:
+        """Environment i's packed plant parameters (`plant.model.pack_params`: the pump's ripple among them)."""
+        return self.P[i].copy()
+
+    def controller_state(self, idx: Any, which: int) -> np.ndarray:
+        """Entry `which` (`loop.kernel.CS_NAMES`) of the digital controllers' states of environments `idx`."""
+        return np.array(self.CS[idx, which])
+
+    def loop_command(self) -> np.ndarray:
+        """Every environment's command (V) from the loop's own controller at the sample just taken, with the fixed
+        feedforward under a residual action (`actions.residual_feedforward`; zero without one)."""
+        return self.CS[:, K_UCTRL] + self.u_ff
+
+    def period_setpoint(self, i: int) -> np.ndarray:
+        """Environment i's set-point over the period about to run, at the plant's samples (call it before `step`)."""
+        return np.repeat(self.XD[i, self.k[i] * self.n_sub + np.arange(self.n_sub)], self.spp)
+
+    def period_trace(self, i: int) -> dict[str, np.ndarray]:
+        """Environment i's samples of the period just integrated: position "x" (m), velocity "v" (m/s),
+        acceleration "a" (m/s^2) and valve command "u" (V)."""
+        n = self.n_samp
+        return {"x": self.YS[i, 1:n + 1, IX].copy(), "v": self.YS[i, 1:n + 1, IV].copy(),
+                "a": self.AUXS[i, 1:n + 1, A_ACC].copy(), "u": self.AUXS[i, 1:n + 1, A_U].copy()}
