@@ -20,10 +20,8 @@ written beside the benchmark (preview-ceiling.json); a rerun reuses what that fi
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
-from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -78,14 +76,6 @@ def _plant_episodes(task: str, seeds: list[int], episodes: int) -> tuple[list, l
     return [[first + episodes * j + k for k in range(episodes)] for j in range(len(seeds))], pins
 
 
-def _episodes(folder: Path) -> dict:
-    cost: dict = defaultdict(dict)
-    with open(folder / "episodes.csv") as fh:
-        for r in csv.DictReader(fh):
-            cost[r["controller"]][(r["agent_seed"], int(r["seed"]))] = float(r["cost"])
-    return cost
-
-
 def _pct(d: dict, key: str = "cost_diff_rel", ci: str = "ci") -> str:
     lo, hi = d[ci]
     return f"{d[key]:+.1%} [{lo:+.1%}, {hi:+.1%}]"
@@ -104,11 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     import yaml
 
     from millvib_env._paths import write_text_atomic
+    from millvib_env.evaluation.benchmark import episode_costs
     from millvib_env.evaluation.stats import cvar, paired_difference
 
     folder = ROOT / "docs" / "benchmark" / "v1" / args.task
     result = json.loads((folder / "benchmark.json").read_text())
-    cost = _episodes(folder)
+    cost = episode_costs(folder)
     seeds = sorted(p for _, p in cost[FF])[: args.plants]
     start = yaml.safe_load((ROOT / "configs" / "control" / "v1" / f"{args.task}.yaml").read_text())[FF]["gains"]
     ff = np.array([cost[FF][("", s)] for s in seeds])

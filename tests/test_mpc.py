@@ -452,3 +452,56 @@ def test_the_bounds_qp_solve_is_the_exact_box_constrained_minimum_and_a_failed_o
     failed = types.SimpleNamespace(update=lambda f: None, solve=lambda: (np.zeros(6), 0.0, -4, {}))
     z0, flag = _solve_first_move(failed, np.zeros(6))
     assert np.isnan(z0) and flag == -4
+
+
+def test_what_the_preview_bound_knows_ahead_can_be_withdrawn_course_by_course():
+    """`MPCSettings.ahead` (scripts/bound_knowledge.py): a course left out is held at its value now over the whole
+    horizon, exactly as the oracle (no preview) holds it, and the courses kept are the full preview's own; the force
+    steps from the gauge need a measured preview and differ from the plant's where the gauge errs."""
+    from dataclasses import replace
+
+    from millvib_env.envs.batch import EpisodeBatch
+
+    seeds = [120001, 120002]
+    base = load_controller("mpc-preview", "change", version="v1").settings
+    venv = EpisodeBatch("MillVib-Valve-v1", len(seeds), config="change", episode_s=0.1,
+                        observation={"preview_samples": [1, 2, 4, 8, 16, 24, 32, 40], "preview_gauge": "measured"})
+    venv.reset(seeds)
+    idx = np.arange(len(seeds))
+    xd0 = np.zeros(len(seeds))
+    for _ in range(40):  # into the episode: the ripple and eccentricity move, a course has samples behind it
+        venv.step(np.zeros((len(seeds), 1), dtype=np.float32))
+
+    def exo(**kw) -> np.ndarray:
+        ctrl = MPCPolicy("mpc-preview", replace(base, **kw))
+        ctrl.attach(venv.core)
+        return ctrl._exogenous(idx, xd0, base.horizon)
+
+    full, oracle = exo(), exo(preview=False)
+    np.testing.assert_array_equal(exo(ahead=()), oracle)
+    for k, course in enumerate(("ripple", "setpoint")):  # columns 1 and 2
+        cut = exo(ahead=tuple(a for a in base.ahead if a != course))
+        np.testing.assert_array_equal(cut[:, :, 1 + k], oracle[:, :, 1 + k])
+        np.testing.assert_array_equal(cut[:, :, 2 - k], full[:, :, 2 - k])
+        np.testing.assert_array_equal(cut[:, :, 0], full[:, :, 0])
+    assert np.ptp(full[:, :, 1], axis=1).min() > 0.0  # the ripple does move over the horizon
+    no_force = exo(ahead=("setpoint", "ripple"))
+    np.testing.assert_array_equal(no_force[:, :, 0], oracle[:, :, 0])
+    gauge = exo(force_steps="gauge")
+    np.testing.assert_array_equal(gauge[:, :, 1:], full[:, :, 1:])
+    assert not np.array_equal(gauge[:, :, 0], full[:, :, 0])
+    exact = EpisodeBatch("MillVib-Valve-v1", 1, config="change", episode_s=0.1)
+    exact.reset(seeds[:1])
+    ctrl = MPCPolicy("mpc-preview", replace(base, force_steps="gauge"))
+    ctrl.attach(exact.core)
+    with pytest.raises(ValueError, match="preview_gauge"):
+        ctrl._exogenous(np.arange(1), np.zeros(1), base.horizon)
+
+
+@pytest.mark.parametrize("kw, what", [({"ahead": ("force",)}, "MPCSettings.ahead"),
+                                      ({"ahead": "ripple"}, "MPCSettings.ahead"),
+                                      ({"ahead": ("ripple", "ripple")}, "MPCSettings.ahead"),
+                                      ({"force_steps": "exact"}, "MPCSettings.force_steps")])
+def test_what_the_bound_knows_ahead_refuses_a_name_it_does_not_know(kw, what):
+    with pytest.raises(ValueError, match=re.escape(what)):
+        MPCSettings(**kw)

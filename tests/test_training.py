@@ -179,6 +179,12 @@ def test_benchmark_cli_writes_json_and_outputs(tmp_path):
     assert SCHEMA <= set(data["controllers"]["pid-paper"])
     for name in ("episodes.csv", "benchmark.md", "severity_plane.png", "cost_bars.png"):
         assert (tmp_path / "out" / name).exists()
+    from millvib_env.evaluation.benchmark import episode_costs
+
+    back = episode_costs(tmp_path / "out")  # what a script reads back: every episode's cost, by its plant
+    saved = json.loads((tmp_path / "out" / "benchmark.json").read_text())["controllers"]["pid-paper"]
+    assert len(back["pid-paper"]) == 3 and all(k[0] == "" for k in back["pid-paper"])
+    assert np.mean(list(back["pid-paper"].values())) == pytest.approx(saved["cost_mean"], rel=1e-9)
 
 
 @pytest.mark.parametrize("name", list_agents())

@@ -53,12 +53,16 @@ if TYPE_CHECKING:
     from millvib_env.envs.core import MillVibCore
 
 __all__ = ["MPCSettings", "MPCModel", "MPCPolicy", "mpc_model", "offset_free_update", "REBUILD_LOG_STEP",
-           "REBUILD_XD_M"]
+           "REBUILD_XD_M", "AHEAD", "FORCE_STEPS"]
 
 #: the plant moves this far in log c1 or log Ct before the model is rebuilt (2 %)
 REBUILD_LOG_STEP = 0.02
 #: the set-point moves this far before the model is re-linearised (m)
 REBUILD_XD_M = 2.0e-5
+#: the exogenous courses a preview can know ahead (`MPCSettings.ahead`)
+AHEAD = ("setpoint", "force_steps", "eccentricity", "ripple")
+#: where the force steps ahead come from (`MPCSettings.force_steps`)
+FORCE_STEPS = ("plant", "gauge")
 #: the cost's scales: position error, velocity (the benchmark's cost scales), integral, command
 X_SCALE_M, V_SCALE_M_S, I_SCALE_M_S, U_SCALE_V = 1.0e-5, 4.5e-3, 1.0e-7, 10.0
 
@@ -79,6 +83,13 @@ class MPCSettings:
     #: with a preview, how far it reaches (loop samples; the course is held from there to the horizon's end); 0:
     #: the whole horizon
     preview_samples: int = 0
+    #: with a preview, the courses it knows ahead (`AHEAD`); the others are held at their values now, as the
+    #: oracle holds them (what each part of the bound's knowledge is worth: scripts/bound_knowledge.py)
+    ahead: tuple = AHEAD
+    #: with a preview, the force steps ahead as the plant applies them ("plant") or as the episode's measured
+    #: preview predicts them ("gauge": `envs.gauge`, its timing, model and noise errors; the environment must
+    #: measure its preview)
+    force_steps: str = "plant"
 
     def __post_init__(self) -> None:
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) \
@@ -96,6 +107,14 @@ class MPCSettings:
                 or not 0 <= self.preview_samples <= 400:
             raise ValueError(f"MPCSettings.preview_samples = {shown(self.preview_samples)} is invalid: an integer in "
                              "[0, 400] (loop samples; 0: the whole horizon)")
+        ahead = self.ahead
+        if isinstance(ahead, str) or not isinstance(ahead, (tuple, list)) or len(set(ahead)) != len(ahead) \
+                or any(a not in AHEAD for a in ahead):
+            raise ValueError(f"MPCSettings.ahead = {shown(ahead)} is invalid: distinct names among {list(AHEAD)}")
+        object.__setattr__(self, "ahead", tuple(ahead))
+        if self.force_steps not in FORCE_STEPS:
+            raise ValueError(f"MPCSettings.force_steps = {shown(self.force_steps)} is invalid: one of "
+                             f"{list(FORCE_STEPS)}")
 
 
 @dataclass
@@ -334,7 +353,7 @@ class MPCPolicy(Controller):
 
     def _exogenous(self, idx: np.ndarray, xd0: np.ndarray, N: int) -> np.ndarray:
         """e_j of environments `idx` for the steps from t_k (j = 0: the step already committed) to t_(k+N):
-        (len(idx), N + 1, 3)."""
+        (len(idx), N + 1, 3). Without a preview, or for a course not in `settings.ahead`, the value now is held."""
 
         core = self._core
         assert core.loop is not None  # attach checks it
@@ -342,7 +361,10 @@ class MPCPolicy(Controller):
         k = core.control_sample(idx)
         t = core.time_now(idx)
         last = core.course_samples - 1
-        if self.settings.preview:
+        at_now = at = np.repeat(np.minimum(k, last)[:, None], N + 1, axis=1)
+        tm_now = tm = np.repeat(t[:, None], N + 1, axis=1)
+        known = self.settings.ahead if self.settings.preview else ()
+        if known:
             steps = self._steps.get(N)
             if steps is None or steps[2] != dt:
                 ahead = np.arange(N + 1)
@@ -351,17 +373,21 @@ class MPCPolicy(Controller):
                 steps = self._steps[N] = (ahead, (ahead + 0.5) * dt, dt)
             at = np.minimum(k[:, None] + steps[0], last)
             tm = t[:, None] + steps[1]  # the sinusoids at each hold's midpoint
-        else:
-            at = np.repeat(np.minimum(k, last)[:, None], N + 1, axis=1)
-            tm = np.repeat(t[:, None], N + 1, axis=1)
         rows = idx[:, None]
         e = np.empty((len(idx), N + 1, 3))
-        e[:, :, 0] = core.force_course(rows, at, tm)  # the force steps and the eccentricity
+        # the force steps and the eccentricity
+        at_f, tm_f = (at if "force_steps" in known else at_now), (tm if "eccentricity" in known else tm_now)
+        if self.settings.force_steps == "gauge" and known:
+            e[:, :, 0] = core.gauge_force_course(rows, at_f, tm_f)
+        else:
+            e[:, :, 0] = core.force_course(rows, at_f, tm_f)
+        tm_r = tm if "ripple" in known else tm_now
         for j, i in enumerate(idx):
             p = core.plant_pack(i)
-            e[j, :, 1] = supply_ripple(tm[j], p) if p[P_PA] != 0.0 else 0.0
+            e[j, :, 1] = supply_ripple(tm_r[j], p) if p[P_PA] != 0.0 else 0.0
         # the set-point at each step's end
-        e[:, :, 2] = core.setpoint_course(rows, np.minimum(at + 1, last)) - xd0[:, None]
+        at_s = at if "setpoint" in known else at_now
+        e[:, :, 2] = core.setpoint_course(rows, np.minimum(at_s + 1, last)) - xd0[:, None]
         return e
 
     def teacher_commands(self, idx: np.ndarray | None = None) -> np.ndarray:

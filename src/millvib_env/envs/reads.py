@@ -29,6 +29,7 @@ class EpisodeReads:
     P: np.ndarray
     XD: np.ndarray
     DFL: np.ndarray
+    GF: np.ndarray | None
     CS: np.ndarray
     YS: np.ndarray
     AUXS: np.ndarray
@@ -70,6 +71,14 @@ class EpisodeReads:
         """The rolling force's deviation (N) of environments `rows`: its steps at control samples `cols` and the
         rolls' eccentricity at times `t` (s), as `plant_rhs` applies them."""
         return self.DFL[rows, cols] + self._eccentricity(rows, t)
+
+    def gauge_force_course(self, rows: Any, cols: Any, t: Any) -> np.ndarray:
+        """`force_course` with the force steps as the episode's measured preview predicts them (`envs.gauge`: its
+        timing, model and noise errors) instead of the plant's own; a clear error where the preview is exact."""
+        if self.GF is None:
+            raise ValueError("the force steps as the gauge predicts them need a measured preview: "
+                             "observation.preview_samples and observation.preview_gauge: measured")
+        return self.GF[rows, cols] + self._eccentricity(rows, t)
 
     def plant_pack(self, i: int) -> np.ndarray:
         """Environment i's packed plant parameters (`plant.model.pack_params`: the pump's ripple among them)."""

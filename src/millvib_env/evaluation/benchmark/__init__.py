@@ -26,7 +26,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from millvib_env.evaluation.benchmark.command import (HEADROOM_CONTROLLERS, benchmark_from_cli,
+    from millvib_env.evaluation.benchmark.command import (HEADROOM_CONTROLLERS, benchmark_from_cli, episode_costs,
                                                           headroom_from_cli)
     from millvib_env.evaluation.benchmark.jobs import (AUTO_JOBS_MAX, AUTO_MIN_PLANTS, CHUNK, SLOW_BASELINES,
                                                        auto_jobs, benchmark_job, episode_records, scenario_records)
@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from millvib_env.evaluation.benchmark.run import run_benchmark
     from millvib_env.evaluation.stats import cvar, interval, paired_difference
 
-__all__ = ["HEADROOM_CONTROLLERS", "benchmark_from_cli", "headroom_from_cli",
+__all__ = ["HEADROOM_CONTROLLERS", "benchmark_from_cli", "episode_costs", "headroom_from_cli",
            "AUTO_JOBS_MAX", "AUTO_MIN_PLANTS", "CHUNK", "SLOW_BASELINES", "auto_jobs", "benchmark_job",
            "episode_records", "scenario_records",
            "ANSWER_BOUND", "ANSWER_CLASSICAL", "DEPLOYABLE_CLASSICAL", "ROOM_BOUNDS", "answer_group", "information_of",
@@ -55,7 +55,7 @@ __all__ = ["HEADROOM_CONTROLLERS", "benchmark_from_cli", "headroom_from_cli",
 
 #: each public name's module (the statistics' names are `evaluation.stats`'); a test holds it to `__all__`
 _MODULE = {name: module for module, names in {
-    "command": ("HEADROOM_CONTROLLERS", "benchmark_from_cli", "headroom_from_cli"),
+    "command": ("HEADROOM_CONTROLLERS", "benchmark_from_cli", "episode_costs", "headroom_from_cli"),
     "jobs": ("AUTO_JOBS_MAX", "AUTO_MIN_PLANTS", "CHUNK", "SLOW_BASELINES", "auto_jobs", "benchmark_job",
              "episode_records", "scenario_records"),
     "lineup": ("ANSWER_BOUND", "ANSWER_CLASSICAL", "DEPLOYABLE_CLASSICAL", "ROOM_BOUNDS", "answer_group",

@@ -19,6 +19,16 @@ from millvib_env.evaluation.benchmark.report import format_table, public_json
 from millvib_env.evaluation.benchmark.run import run_benchmark
 
 
+def episode_costs(folder: str | Path) -> dict[str, dict[tuple[str, int], float]]:
+    """A saved benchmark's per-episode costs (its folder's episodes.csv, written by ``--out``): per controller, per
+    (training seed as written, "" for a baseline; plant seed), the cost. For scripts that build on a saved run."""
+    costs: dict[str, dict[tuple[str, int], float]] = {}
+    with open(Path(folder) / "episodes.csv", newline="") as fh:
+        for r in csv.DictReader(fh):
+            costs.setdefault(r["controller"], {})[(r["agent_seed"], int(r["seed"]))] = float(r["cost"])
+    return costs
+
+
 def _write_outputs(result: dict, out: Path, task: Task, figures: bool = True) -> list[Path]:
     """Write the result folder of a benchmark of `task` as a whole: into a temporary sibling, then put in place
     (`atomic_folder`), so an interrupted or concurrent run never leaves a mix of two runs' files. Without
