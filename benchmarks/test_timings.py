@@ -24,23 +24,25 @@ CPU_TIME = ROOT / "scripts" / "cpu_time.py"
 MILLVIB = [sys.executable, "-c", "import sys; from millvib_cli import main; sys.exit(main())"]
 
 
-def _command(benchmark, args: list[str], rounds: int = 3) -> None:
-    """`millvib ARGS` as a whole process, `rounds` times after a warm-up; its CPU seconds (every process it
-    started, scripts/cpu_time.py) go into the result's extra_info."""
+def _command(benchmark, args: list[str], rounds: int = 3, *, launcher: list[str] | None = None, expect: int = 0,
+             env: dict | None = None, cwd: Path = ROOT, shown: str | None = None, warmup: int = 1) -> None:
+    """`millvib ARGS` (or `launcher` ARGS) as a whole process, `rounds` times after `warmup` rounds; its CPU
+    seconds (every process it started, scripts/cpu_time.py) go into the result's extra_info. The process must exit
+    with `expect`."""
     cpu: list[float] = []
 
     def run() -> None:
-        out = subprocess.run([sys.executable, str(CPU_TIME), *MILLVIB, *args], capture_output=True, text=True,
-                             cwd=ROOT)
-        assert out.returncode == 0, out.stderr[-2000:]
+        out = subprocess.run([sys.executable, str(CPU_TIME), *(launcher or MILLVIB), *args], capture_output=True,
+                             text=True, cwd=cwd, env=env)
+        assert out.returncode == expect, out.stderr[-2000:]
         found = re.search(r"([0-9.]+) CPU-s in its control group", out.stderr) or \
             re.search(r"wall, ([0-9.]+) CPU-s", out.stderr)
         assert found, out.stderr[-500:]
         cpu.append(float(found.group(1)))
 
-    benchmark.pedantic(run, rounds=rounds, warmup_rounds=1, iterations=1)
-    benchmark.extra_info["command"] = "millvib " + " ".join(args)
-    benchmark.extra_info["cpu_s"] = cpu[1:]  # the counted rounds' (the first was the warm-up's)
+    benchmark.pedantic(run, rounds=rounds, warmup_rounds=warmup, iterations=1)
+    benchmark.extra_info["command"] = shown or "millvib " + " ".join(args)
+    benchmark.extra_info["cpu_s"] = cpu[warmup:]  # the counted rounds' (not the warm-up's)
 
 
 @pytest.mark.benchmark(group="commands")
@@ -67,6 +69,207 @@ def test_headroom(benchmark):
 @pytest.mark.benchmark(group="commands")
 def test_help(benchmark):
     _command(benchmark, ["--help"], rounds=5)
+
+
+#: `millvib train` up to its first rollout: the child stops the process where PPO starts collecting
+FIRST_ROLLOUT = """
+import os, sys
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+def first_rollout(self, *args, **kwargs):
+    os._exit(0)
+
+OnPolicyAlgorithm.collect_rollouts = first_rollout
+from millvib_cli import main
+sys.argv = ["millvib"] + sys.argv[1:]
+main()
+"""
+
+
+@pytest.mark.benchmark(group="commands")
+def test_train_start(benchmark, tmp_path):
+    """`millvib train --algo ppo` (the shipped configs/agents/ppo.yml) from the command to its first rollout:
+    Python's start, the imports, the run folder, the environments and the model."""
+    args = ["train", "--algo", "ppo", "--log-dir", str(tmp_path / "logs"), "--save-dir", str(tmp_path / "agent")]
+    _command(benchmark, args, launcher=[sys.executable, "-c", FIRST_ROLLOUT], cwd=tmp_path,
+             shown="millvib train --algo ppo, up to its first rollout")
+
+
+#: damage -> a small damaged file's whole text (4-601 bytes), which every command must refuse in one line
+DAMAGE = {
+    "aliases": "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{n}: &{n} [{', '.join(['*' + p] * 9)}]\n" for p, n in zip("abcdefgh", "bcdefghi")),
+    "a repeated key": "startup: {config: startup}\nstartup: {config: rolling}\n",
+    "a 400-digit integer": "kp: " + "9" * 400 + "\n",
+    "keys of mixed types": "{1: 2, zz: 3}\n",
+    "broken YAML": "a: [1, 2\n",
+    "a !!python tag": "!!python/object/apply:os.system ['true']\n",
+    "nested 300 deep": "[" * 300 + "]" * 300 + "\n",
+    "not UTF-8": b"\xff\xfe\x00\x01",
+}
+_BENCH = ["benchmark", "--controllers", "pid-robust", "--episodes", "2", "--no-scenarios", "--quiet"]
+#: a file under configs/ -> a command that reads it
+READERS = {
+    "plant/paper.yaml": ["simulate", "--t-end", "0.2"],
+    "severity.yaml": ["simulate", "--t-end", "0.2"],
+    "tasks.yaml": ["tasks"],
+    "env/startup.yaml": _BENCH,
+    "control/v1/startup.yaml": _BENCH,
+    "agents/ppo.yml": ["train", "--algo", "ppo", "--n-timesteps", "64", "--quiet"],
+}
+
+
+@pytest.mark.benchmark(group="refusals")
+@pytest.mark.parametrize("name", list(READERS))
+def test_refusal(benchmark, tmp_path, name):
+    """How long a command takes to refuse a damaged config file, as a user meets it (a fresh `millvib` process,
+    imports included, over a copy of configs/, `MILLVIB_CONFIGS`): the file replaced by each of `DAMAGE`'s
+    damaged texts in turn, each once (docs/guarantees.md: no refusal takes more than 5 s; each exits 2 in one
+    line, which the tests hold)."""
+    import os
+    import shutil
+
+    root = tmp_path / "configs"
+    shutil.copytree(ROOT / "configs", root)
+    kinds = iter(DAMAGE.values())
+    env = {**os.environ, "MILLVIB_CONFIGS": str(root)}
+
+    def damage() -> None:
+        text = next(kinds)
+        (root / name).write_bytes(text if isinstance(text, bytes) else text.encode())
+
+    def refuse() -> None:
+        out = subprocess.run([*MILLVIB, *READERS[name]], capture_output=True, text=True, cwd=tmp_path, env=env)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-1000:]
+
+    benchmark.pedantic(refuse, setup=damage, rounds=len(DAMAGE), iterations=1)
+    benchmark.extra_info["command"] = f"millvib {' '.join(READERS[name])}, configs/{name} damaged " \
+                                      f"({len(DAMAGE)} ways)"
+
+
+#: damage -> a damaged agent card's whole text, which `millvib export` must refuse in one line
+CARD_DAMAGE = {
+    "not an object": "[1, 2]",
+    "env_kwargs null": '{"name": "x", "algo": "ppo", "env_id": "MillVib-Valve-v1", "env_kwargs": null}',
+    "seed 1e400": '{"name": "x", "algo": "ppo", "env_id": "MillVib-Valve-v1", "seed": 1e400}',
+    "nested 300 deep": "[" * 300 + "]" * 300,
+}
+
+
+@pytest.mark.benchmark(group="refusals")
+def test_refusal_card(benchmark, tmp_path):
+    """`millvib export` of a shipped agent's folder whose card.json is replaced by each of `CARD_DAMAGE`'s texts in
+    turn, each once: the card is checked as data before torch loads."""
+    import shutil
+
+    agent = tmp_path / "agent"
+    shutil.copytree(ROOT / "agents" / "ppo-gain-pf" / "seed-0", agent)
+    cards = iter(CARD_DAMAGE.values())
+    args = ["export", str(agent), "--out", str(tmp_path / "a.onnx")]
+
+    def refuse() -> None:
+        out = subprocess.run([*MILLVIB, *args], capture_output=True, text=True, cwd=tmp_path)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-1000:]
+
+    def damage() -> None:
+        (agent / "card.json").write_text(next(cards))
+
+    benchmark.pedantic(refuse, setup=damage, rounds=len(CARD_DAMAGE), iterations=1)
+    benchmark.extra_info["command"] = f"millvib export AGENT --out a.onnx, its card.json damaged ({len(CARD_DAMAGE)} " \
+                                      "ways)"
+
+
+@pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("env_id, kw, steps", [
+    ("MillVib-Valve-v1", {"residual": True, "config": "rolling"}, 3000),
+    ("MillVib-GainSchedule-v1", {"config": "rolling"}, 300),
+    ("MillVib-Valve-v0", {}, 1500)], ids=["Valve-v1", "GainSchedule-v1", "Valve-v0"])
+def test_one_env_step(benchmark, env_id, kw, steps):
+    """One Gymnasium environment (``gym.make``) stepped with random actions in [-0.3, 0.3]: where Python's
+    bookkeeping weighs most. The steps' hash (observations, rewards, flags, infos) goes into extra_info, so two
+    versions of the code can be held to the same steps."""
+    import hashlib
+    import json
+
+    import gymnasium as gym
+
+    import millvib_env  # noqa: F401 - registers the ids
+
+    env = gym.make(env_id, **kw)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-0.3, 0.3, (steps, *env.action_space.shape)).astype(np.float32)
+    digest = hashlib.sha256()
+
+    def run() -> None:
+        env.reset(seed=5)
+        for a in actions:
+            obs, r, term, trunc, info = env.step(a)
+            digest.update(np.ascontiguousarray(obs).tobytes() + np.float64(r).tobytes() + bytes([term, trunc]))
+            digest.update(json.dumps({k: v for k, v in info.items() if k != "signals"}, sort_keys=True,
+                                     default=str).encode())
+            if term or trunc:
+                env.reset()
+
+    benchmark.pedantic(run, rounds=3, warmup_rounds=1)
+    benchmark.extra_info["env_steps"] = steps
+    benchmark.extra_info["steps_hash"] = digest.hexdigest()[:16]  # of the warm-up and the rounds, the same each
+
+
+@pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("env_id", ["MillVib-Valve-v1", "MillVib-GainSchedule-v1"])
+def test_kernel_share(benchmark, env_id, monkeypatch):
+    """Where a batched step's time goes: 64 environments of the rolling task (a residual valve), 100 steps of random
+    actions, the compiled loop kernel (`loop.kernel.advance_loop_batch`, which threads could share) against the
+    rest (observation, reward, episode ends: serial Python). With a kernel K and a rest R per step, threads give
+    at most (K + R) / (K / n + R)."""
+    import time
+
+    from millvib_env.envs import core
+    from millvib_env.envs.batch import EpisodeBatch
+
+    inner, spent = core.loop_kernel.advance_loop_batch, [0.0]
+
+    def timed(*args):
+        t = time.perf_counter()
+        out = inner(*args)
+        spent[0] += time.perf_counter() - t
+        return out
+
+    monkeypatch.setattr(core.loop_kernel, "advance_loop_batch", timed)
+    kw = {"residual": True} if "Valve" in env_id else {}
+    venv = EpisodeBatch(env_id, 64, config="rolling", **kw)
+    venv.reset(list(range(500000, 500064)))
+    a = np.random.default_rng(0).uniform(-0.3, 0.3, (100, 64, *venv.core.action_space.shape)).astype(np.float32)
+
+    total = [0.0]
+
+    def steps() -> None:
+        t = time.perf_counter()
+        for k in range(100):
+            venv.step(a[k])
+        total[0] += time.perf_counter() - t
+
+    steps()  # warm
+    spent[0] = total[0] = 0.0
+    benchmark.pedantic(steps, rounds=5)
+    benchmark.extra_info["env_steps"] = 100 * 64
+    benchmark.extra_info["kernel_share"] = spent[0] / total[0]
+
+
+@pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("algo, steps", [("ppo", 16384), ("sac", 8000)])
+def test_train_steps(benchmark, tmp_path, algo, steps):
+    """`train()` of the gain-schedule environment with the shipped hyperparameters (configs/agents/<algo>.yml) for
+    a fixed number of environment steps, no evaluation or checkpoints: the learner's throughput, building the
+    environments and the model included (SAC's first 5000 steps are its random warm-up, without updates)."""
+    from millvib_env.training.train import train
+
+    def run() -> None:
+        train(algo, seed=0, n_timesteps=steps, log_dir=str(tmp_path / "logs"), eval_freq=10**9,
+              checkpoint_freq=10**9, progress=False)
+
+    benchmark.pedantic(run, rounds=2, warmup_rounds=1)
+    benchmark.extra_info["env_steps"] = steps
 
 
 @pytest.mark.benchmark(group="pieces")

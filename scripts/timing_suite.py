@@ -33,11 +33,15 @@ def _row(b: dict) -> str:
     if "command" in info:
         cpu = info.get("cpu_s") or []
         cpu_text = f"{statistics.median(cpu):.3g} ({min(cpu):.3g}-{max(cpu):.3g})" if cpu else "-"
+        if "cpu_s" not in info:  # a process timed from here (a refusal): its slowest round too
+            wall += f", slowest {s['max']:.3g} s"
         return f"| {name} | `{info['command']}` | {wall} | {cpu_text} | {s['rounds']} |"
     rate = ""
     for key, unit in (("env_steps", "env steps/s"), ("samples", "samples/s")):
         if key in info:
             rate = f"; {info[key] / s['median']:,.0f} {unit}"
+    if "kernel_share" in info:
+        rate += f"; the kernel {info['kernel_share']:.0%} of it"
     return f"| {name} | `benchmarks/test_timings.py::{b['name']}` | {wall}{rate} | - | {s['rounds']} |"
 
 
