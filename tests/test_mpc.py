@@ -251,6 +251,45 @@ def test_the_history_observation_is_the_measured_channels_k_steps_ago():
         with pytest.raises(ValueError, match="history_samples"):
             gym.make("MillVib-Valve-v1", config="rolling", observation={"history_samples": bad})
 
+def test_the_memory_observation_is_each_channels_moving_averages():
+    """history_filters appends, per time constant tau, the measured channels' exponential moving averages and
+    those of their squares (each moves by 1/tau a step, started at the episode's first observation), after the
+    lags, in the batched engine as in one environment; bad time constants are refused."""
+    import gymnasium as gym
+
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.envs.observation import HISTORY_CHANNELS
+
+    taus = [2, 16]
+    kw = {"residual": True, "observation": {"force": True, "history_samples": [1], "history_filters": taus}}
+    env = gym.make("MillVib-Valve-v1", config="rolling", **kw)
+    names = env.unwrapped.core.obs_names
+    now = list(HISTORY_CHANNELS)
+    assert names[-4 * len(now):] == [f"{nm}_{what}_{t}" for what in ("mean", "meansq") for t in taus for nm in now]
+    assert names[-5 * len(now):-4 * len(now)] == [f"{nm}_lag_1" for nm in now]
+    actions = np.random.default_rng(0).uniform(-1, 1, (30, 1)).astype(np.float32)
+    seen = [env.reset(seed=120004)[0]]
+    for a in actions:
+        seen.append(env.step(a)[0])
+    seen = np.array(seen, dtype=np.float64)
+    x = seen[:, [names.index(nm) for nm in now]]
+    for tau in taus:
+        mean, meansq = x[0].copy(), x[0] ** 2
+        for k in range(1, len(x)):  # float32 in the env: within its rounding over 30 steps
+            mean += (x[k] - mean) / tau
+            meansq += (x[k] ** 2 - meansq) / tau
+            np.testing.assert_allclose(seen[k, [names.index(f"{nm}_mean_{tau}") for nm in now]], mean, atol=1e-5)
+            np.testing.assert_allclose(seen[k, [names.index(f"{nm}_meansq_{tau}") for nm in now]], meansq, atol=1e-5)
+    batch = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling", **kw)
+    out = [batch.reset([120004, 120005])[0]]
+    for a in actions:
+        out.append(batch.step(np.repeat(a[None], 2, axis=0))[0][0])
+    np.testing.assert_array_equal(np.array(out), seen.astype(np.float32))  # the same engine: the same bytes
+    for bad in ([16, 4], [1], [2, 100001], "3"):
+        with pytest.raises(ValueError, match="history_filters"):
+            gym.make("MillVib-Valve-v1", config="rolling", observation={"history_filters": bad})
+
+
 @pytest.mark.parametrize("argv, what", [
     (["headroom", "--env-version", "v0", "--quiet"], "v1"),
     (["distill", "--iterations", "0", "--save-dir", "d"], "iterations"),
@@ -258,6 +297,7 @@ def test_the_history_observation_is_the_measured_channels_k_steps_ago():
     (["distill", "--range-v", "nan", "--save-dir", "d"], "range_v"),
     (["distill", "--net", "0", "--save-dir", "d"], "net"),
     (["distill", "--history", "4", "2", "--save-dir", "d"], "history_samples"),
+    (["distill", "--filters", "1", "--save-dir", "d"], "history_filters"),
     (["distill", "--save-dir", "/proc/version/x"], "--save-dir"),
     (["distill", "--preview", "perfect", "--save-dir", "d"], "--preview"),
 ])

@@ -40,14 +40,18 @@ DEFAULT_PREVIEW = (1, 2, 4, 8, 16, 24, 32, 40)
 
 def preview_env_kwargs(preview: Sequence[int] = DEFAULT_PREVIEW, range_v: float = 100.0,
                        base: str | list[float] = "pid-pf-robust",
-                       history: Sequence[int] = (), loop_sample: str = "current", gauge: str | dict = "exact") -> dict:
+                       history: Sequence[int] = (), loop_sample: str = "current", gauge: str | dict = "exact",
+                       filters: Sequence[int] = ()) -> dict:
     """The environment of a controller that reads the preview: a residual of +-`range_v` on `base` (a fixed-gain
     baseline's name, or its gains), the load cells,
     the preview's look-aheads, (where `history` names lags) the measured channels' history, the loop's sample it
-    reads (`observation.loop_sample`), the preview exact or measured (`gauge`: `envs.gauge`)."""
+    reads (`observation.loop_sample`), the preview exact or measured (`gauge`: `envs.gauge`), and (where `filters`
+    names time constants) the channels' moving averages (`observation.history_filters`)."""
     seen: dict = {"force": True, "preview_samples": list(preview)}
     if history:
         seen["history_samples"] = list(history)
+    if filters:
+        seen["history_filters"] = list(filters)
     if loop_sample != "previous":
         seen["loop_sample"] = loop_sample
     if gauge != "exact":

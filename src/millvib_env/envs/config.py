@@ -115,6 +115,9 @@ class ObservationSettings:
     #: a history: the measured channels (`observation.HISTORY_CHANNELS`) as they were this many agent steps
     #: ago (what a recurrent controller would remember); empty: none
     history_samples: tuple = ()
+    #: a memory of the episode so far: per time constant tau (agent steps), the measured channels' exponential
+    #: moving averages and those of their squares, each updated by 1/tau a step; empty: none
+    history_filters: tuple = ()
     #: the sampled loop's readings (v1) the observation carries: "previous", the sample the controller took at
     #: the period's start (one sample older than the one the agent's action is added to), or "current", the
     #: sample it takes at the period's end, which it reads together with the agent's next action (as one
@@ -128,6 +131,7 @@ class ObservationSettings:
         object.__setattr__(self, "preview_samples", tuple(int(k) for k in self.preview_samples))
         object.__setattr__(self, "preview_gauge", gauge_settings(self.preview_gauge))
         object.__setattr__(self, "history_samples", tuple(int(k) for k in self.history_samples))
+        object.__setattr__(self, "history_filters", tuple(int(k) for k in self.history_filters))
 
 
 @dataclass(frozen=True)

@@ -128,7 +128,8 @@ class MillVibCore(EpisodeReads):
         self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
                                  observe_phase=observe_phase, observe_params=observe_params,
                                  observe_force=self.observe_force, noise=noise, delay=delay, n=self.n,
-                                 preview_samples=seen.preview_samples, history_samples=seen.history_samples)
+                                 preview_samples=seen.preview_samples, history_samples=seen.history_samples,
+                                 history_filters=seen.history_filters)
         self.observe_params, self.observe_phase = observe_params, observe_phase
         self.obs_names = self.observer.names
         #: the fixed feedforward under a residual action (`envs.feedforward`), read from the observation the agent

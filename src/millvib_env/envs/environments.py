@@ -338,8 +338,12 @@ class ValveEnv(MillVibEnv):
     sets each), from the episode's own gauge stream. The set-point's course is exact either way.
     Optional history (``observation.history_samples``, a list of lags k in agent steps): per k, the
     measured channels (error, velocity, acceleration, pressure, last action, PID command, load force,
-    those present) as they were k steps ago, appended last (names ``<channel>_lag_<k>``; an episode's
-    first observation fills the steps before it).
+    those present) as they were k steps ago, appended after the others (names ``<channel>_lag_<k>``; an
+    episode's first observation fills the steps before it). Optional memory (``observation.history_filters``,
+    a list of time constants tau in agent steps): per tau, the same channels' exponential moving averages
+    and those of their squares (each moves by 1/tau of the step's value a step; names
+    ``<channel>_mean_<tau>`` and ``<channel>_meansq_<tau>``), appended last; an episode's first observation
+    starts them.
     On the sampled loop (v1), ``observation.loop_sample`` says which of the controller's samples the
     position, velocity, pressure, PID command and force channels carry: ``"previous"`` (the default)
     the one it took at the period's start, one sample older than the one the action is added to;

@@ -65,7 +65,7 @@ class Observer:
 
     def __init__(self, mode: str, *, residual: bool, gain_names: tuple[str, ...], observe_phase: bool,
                  observe_params: bool, noise, delay: int, n: int, observe_force: bool = False,
-                 preview_samples: tuple = (), history_samples: tuple = ()):
+                 preview_samples: tuple = (), history_samples: tuple = (), history_filters: tuple = ()):
         self.mode, self.residual, self.noise, self.delay = mode, residual, noise, delay
         self.observe_phase, self.observe_params, self.observe_force = observe_phase, observe_params, observe_force
         names = ["error", "velocity", "acceleration", "pressure", "vibration"]
@@ -87,6 +87,14 @@ class Observer:
         self._hist_cols = np.array([j for j, nm in enumerate(names) if nm in HISTORY_CHANNELS], dtype=np.intp)
         self._n_now = len(names)
         names += [f"{names[j]}_lag_{k}" for k in self.history_samples for j in self._hist_cols]
+        # a memory: the measured channels' moving averages and those of their squares, per time constant
+        self.history_filters = tuple(history_filters)
+        self._n_lagged = len(names)
+        names += [f"{names[j]}_{what}_{tau}" for what in ("mean", "meansq") for tau in self.history_filters
+                  for j in self._hist_cols]
+        self._rate = np.array([1.0 / tau for tau in self.history_filters], dtype=np.float32)[None, :, None]
+        self._mean = np.zeros((n, len(self.history_filters), len(self._hist_cols)), dtype=np.float32)
+        self._meansq = np.zeros_like(self._mean)
         self.names = names
         self.buffer = np.zeros((n, delay + 1, len(names)), dtype=np.float32)
         # the sensor noise of each environment's episode, drawn ahead at its start (`start_noise`)
@@ -154,7 +162,7 @@ class Observer:
             cols += list(slog(np.asarray(df, float), *OBS_SCALES["load_force"][2:]).T)
             cols += list(slog(np.asarray(dxd, float), *OBS_SCALES["error"][2:]).T)
         rows = np.array(cols, dtype=np.float64).T.astype(np.float32, order="C")  # (environments, channels)
-        if self.history_samples:  # filled by start / push, which see every step of every environment
+        if self.history_samples or self.history_filters:  # filled by start / push, which see every step
             rows = np.concatenate([rows, np.zeros((len(rows), len(self.names) - self._n_now), np.float32)], axis=1)
         return rows
 
@@ -163,7 +171,12 @@ class Observer:
         if self.history_samples:
             self._hist[i] = obs[self._hist_cols]
             obs = obs.copy()
-            obs[self._n_now:] = self._hist[i, self._lags].reshape(-1)
+            obs[self._n_now:self._n_lagged] = self._hist[i, self._lags].reshape(-1)
+        if self.history_filters:
+            now = obs[self._hist_cols]
+            self._mean[i], self._meansq[i] = now, now * now
+            obs = obs.copy()
+            obs[self._n_lagged:] = np.concatenate([self._mean[i].reshape(-1), self._meansq[i].reshape(-1)])
         self.buffer[i] = obs
         return self.buffer[i, 0].copy()
 
@@ -173,7 +186,14 @@ class Observer:
             self._hist[:, 1:] = self._hist[:, :-1]
             self._hist[:, 0] = obs[:, self._hist_cols]
             obs = obs.copy()
-            obs[:, self._n_now:] = self._hist[:, self._lags].reshape(len(obs), -1)
+            obs[:, self._n_now:self._n_lagged] = self._hist[:, self._lags].reshape(len(obs), -1)
+        if self.history_filters:
+            now = obs[:, None, self._hist_cols]
+            self._mean += self._rate * (now - self._mean)
+            self._meansq += self._rate * (now * now - self._meansq)
+            obs = obs.copy()
+            m = len(obs)
+            obs[:, self._n_lagged:] = np.concatenate([self._mean.reshape(m, -1), self._meansq.reshape(m, -1)], axis=1)
         if self.delay:
             self.buffer[:, 1:] = self.buffer[:, :-1]
         self.buffer[:, 0] = obs

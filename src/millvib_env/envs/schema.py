@@ -11,7 +11,7 @@ from millvib_env._checks import as_float, shown, shown_path
 from millvib_env.envs.gauge import gauge_settings
 
 __all__ = ["checked_gains", "fail", "number", "section", "SECTIONS", "TOP_KEYS", "OPTIONAL_KEYS",
-           "MAX_PREVIEW_SAMPLES", "MAX_HISTORY_SAMPLES",
+           "MAX_PREVIEW_SAMPLES", "MAX_HISTORY_SAMPLES", "MAX_HISTORY_FILTER",
            "LOOP_SAMPLES"]
 
 
@@ -63,11 +63,21 @@ LOOP_SAMPLES = ("previous", "current")
 
 #: the oldest history an observation may carry (agent steps)
 MAX_HISTORY_SAMPLES = 256
+#: the longest time constant of a history filter (agent steps; `ObservationSettings.history_filters`)
+MAX_HISTORY_FILTER = 100000
 
 
 def _history(path: str, value: Any) -> list:
     """Lags in agent steps, each in [1, MAX_HISTORY_SAMPLES]."""
     return _increasing(path, value, MAX_HISTORY_SAMPLES, 16)
+
+
+def _filters(path: str, value: Any) -> list:
+    """Time constants in agent steps, each in [2, MAX_HISTORY_FILTER]."""
+    out = _increasing(path, value, MAX_HISTORY_FILTER, 8)
+    if any(k < 2 for k in out):
+        fail(path, value, f"time constants in agent steps must each be in [2, {MAX_HISTORY_FILTER}]")
+    return out
 
 
 def _gauge(path: str, value: Any) -> Any:
@@ -275,6 +285,7 @@ SECTIONS: dict[str, Callable[[str, Any], Any]] = {
         required=("x_max_m", "p_min_pa", "p_max_factor")),
     "observation": lambda p, v: section(p, v, {"phase": _bool, "params": _bool, "force": _bool,
                                                 "preview_samples": _preview, "history_samples": _history,
+                                                "history_filters": _filters,
                                                 "loop_sample": lambda pp, vv: vv in LOOP_SAMPLES or fail(
                                                     pp, vv, f"one of {list(LOOP_SAMPLES)}"),
                                                 "preview_gauge": _gauge}),

@@ -92,6 +92,9 @@ def add_distill_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--history", type=int, nargs="*", default=[1, 2, 4, 8, 16, 32], metavar="K",
                    help="the student also reads the measured channels as they were K loop samples ago, for each K "
                         "(observation.history_samples; default 1 2 4 8 16 32; none: --history with no K)")
+    p.add_argument("--filters", type=int, nargs="*", default=[], metavar="TAU",
+                   help="the student also reads the measured channels' moving averages and those of their squares, "
+                        "per time constant TAU in loop samples (observation.history_filters; default none)")
     p.add_argument("--loop-sample", choices=("current", "previous"), default="current",
                    help="the loop's sample the student reads (observation.loop_sample): 'current', the one its "
                         "action joins at the controller (default), or 'previous', one sample older (the agents "

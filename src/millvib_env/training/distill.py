@@ -55,12 +55,12 @@ ENV_ID = "MillVib-Valve-v1"
 
 
 def student_env_kwargs(preview=DEFAULT_PREVIEW, base: str = "pid-pf-robust", range_v: float = 10.0,
-                       history=(), loop_sample: str = "previous", gauge: str | dict = "exact") -> dict:
+                       history=(), loop_sample: str = "previous", gauge: str | dict = "exact", filters=()) -> dict:
     """The student's environment (`control.preview.preview_env_kwargs`): a residual of +-`range_v` on `base`, the
     load cells, the preview, (where `history` names lags) the measured channels' history, and the loop's sample it
     reads (`observation.loop_sample`)."""
     return preview_env_kwargs(preview, range_v=range_v, base=base, history=history, loop_sample=loop_sample,
-                              gauge=gauge)
+                              gauge=gauge, filters=filters)
 
 
 def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds: list[int], stats, progress=None,
@@ -151,12 +151,14 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
             validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured", on: str | None = None,
-            budget: str = "iteration") -> dict:
+            budget: str = "iteration", filters=()) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
     on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents'). The
     student reads the preview as `preview_gauge` says (`envs.gauge`): "measured" (the default, as the benchmark
-    gives it) or "exact" (the shipped students'); the card's env_kwargs say which.
+    gives it) or "exact" (the shipped students'); the card's env_kwargs say which. `filters`: time constants
+    (loop samples) of the measured channels' moving averages the student also reads (`observation.history_filters`;
+    none by default: on the varied mill they made the student dearer, docs/limitations.md).
 
     `on`: the classical controller the residual sits on, None for the reference's PID alone, or "pid-pf-preview"
     (the classical controller of the student's own information: its PID and, as the environment's
@@ -184,7 +186,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     layers = [integer(f"net[{i}]", n, lo=1, hi=4096) for i, n in enumerate(net)]
     if preview_gauge not in ("measured", "exact"):
         raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
-    kwargs = _student_kwargs(t, preview, range_v, history, loop_sample, preview_gauge, on)
+    kwargs = _student_kwargs(t, preview, range_v, history, loop_sample, preview_gauge, on, filters)
     run = _Run(t, seed, episodes, epochs, budget, validation_episodes,
                _card_maker(t, kwargs, seed, teacher, episodes, epochs, command, baseline, on, budget),
                load_controller(teacher, t, version="v1"),
@@ -209,11 +211,11 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
 
 
 def _student_kwargs(t: Task, preview, range_v: float, history, loop_sample: str, preview_gauge: str,
-                    on: str | None) -> dict:
+                    on: str | None, filters=()) -> dict:
     """The student's environment's keyword arguments; on a classical preview controller (`on`), its PID under the
     residual and its tuned feedforward as the environment's ``actions.residual_feedforward``."""
     kwargs = student_env_kwargs(preview, range_v=range_v, history=history, loop_sample=loop_sample,
-                                gauge=preview_gauge)
+                                gauge=preview_gauge, filters=filters)
     if on is not None:
         base = load_controller(on, t, version="v1")
         if not hasattr(base, "feedforward_gains"):
