@@ -322,3 +322,21 @@ def test_the_compiled_adaptive_estimator_is_its_numpy_and_scipy_arithmetic():
             bound = 1e-12 * np.maximum(np.abs(want), [*states[i]["scale"], abs(states[i]["z"])])
             assert np.all(np.abs(np.array([*est.acc[i], est.z[i]]) - want) <= bound), (i, est.acc[i], want)
     assert all(np.isfinite(est.c1_hat)) and all(np.isfinite(est.ct_hat))  # the episode moved the plant
+
+
+def test_the_benchmarks_roles_are_fields_of_the_registry_entries_and_consistent():
+    """What the benchmark does with a baseline (the reference, the group 'classical', the paired columns, worker
+    processes for a QP every sample) is declared on its registry entry; the tables are read from there. A deployable
+    classical controller reads no oracle's information, the reference is one of them and the only one, and a slow
+    baseline commands the valve of the sampled loop."""
+    from millvib_env.control.registry import REFERENCE, REGISTRY
+    from millvib_env.evaluation.benchmark import COMPARED_WITH, DEPLOYABLE_CLASSICAL, SLOW_BASELINES
+
+    assert [n for n, b in REGISTRY.items() if b.reference] == [REFERENCE]
+    assert REFERENCE in DEPLOYABLE_CLASSICAL
+    assert DEPLOYABLE_CLASSICAL == tuple(n for n, b in REGISTRY.items() if b.classical)
+    for name in DEPLOYABLE_CLASSICAL:
+        atoms = set(REGISTRY[name].information.split("+"))
+        assert not atoms & {"params", "state", "pump"}, name
+    assert set(COMPARED_WITH) == {n for n, b in REGISTRY.items() if b.compared_with} and COMPARED_WITH
+    assert SLOW_BASELINES and all(REGISTRY[n].env_mode == "valve" and REGISTRY[n].loop_only for n in SLOW_BASELINES)

@@ -56,12 +56,23 @@ class Baseline:
     previews: bool = False
     #: what it reads (`control.information`: atoms joined by "+")
     information: str = "loop"
+    #: a deployable classical controller: the benchmark's group 'classical' and `millvib headroom`, and the best of
+    #: them is named beside the room
+    classical: bool = False
+    #: the benchmark's default reference, the strongest deployable classical controller (exactly one: `REFERENCE`)
+    reference: bool = False
+    #: the benchmark pairs every controller with it too, beside the reference (`COMPARED_WITH`)
+    compared_with: bool = False
+    #: a command every loop sample from a QP: `--jobs auto` starts worker processes where it runs
+    slow: bool = False
 
     @classmethod
-    def fixed(cls, description: str, gains: GainsFn | None = None, information: str = "loop") -> Baseline:
+    def fixed(cls, description: str, gains: GainsFn | None = None, information: str = "loop", *,
+              classical: bool = False, reference: bool = False, compared_with: bool = False) -> Baseline:
         """A fixed-gain baseline: its gains from `gains`, by default its entry in the task's control config
         (`tuned_gains`)."""
-        return cls(description, fixed_gains, gains=gains or tuned_gains, information=information)
+        return cls(description, fixed_gains, gains=gains or tuned_gains, information=information,
+                   classical=classical, reference=reference, compared_with=compared_with)
 
     @property
     def named_gains(self) -> bool:
@@ -141,22 +152,23 @@ def mpc(name: str, task: Task, version: str, cfg: EnvConfig, gain_map: GainMap) 
 
 #: every baseline by name, in the benchmark's order
 REGISTRY: dict[str, Baseline] = {
-    "pid-paper": Baseline.fixed("the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)", paper_gains),
+    "pid-paper": Baseline.fixed("the paper's PID (KP = 1e5, KI = 1e-3, KD = 0)", paper_gains, classical=True),
     "pid-nominal": Baseline.fixed("tuned on the task's nominal plant only (Table 1 c1 and Ct), as a PID is "
-                                  "commissioned"),
-    "pid-robust": Baseline.fixed("one set of gains minimising the mean cost over the task's tuning plants"),
+                                  "commissioned", classical=True),
+    "pid-robust": Baseline.fixed("one set of gains minimising the mean cost over the task's tuning plants",
+                                 classical=True, compared_with=True),
     "pid-oracle": Baseline("knows the true c1 and Ct; gains tuned offline per plant (grid, interpolated); not "
-                           "deployable", gain_oracle, information="loop+params"),
+                           "deployable", gain_oracle, information="loop+params", compared_with=True),
     "pid-adaptive": Baseline("estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the "
-                             "estimate", adaptive),
+                             "estimate", adaptive, classical=True),
     "lqr-oracle": Baseline("knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
                            "linearised plant; not deployable", lqr_oracle, information="loop+params"),
     "pid-pf-robust": Baseline.fixed("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range "
                                     "of c1 and Ct: the active damping a plant engineer commissions; the benchmark's "
-                                    "reference"),
+                                    "reference", classical=True, reference=True),
     "pid-pf-ff": Baseline.fixed("pid-pf-robust plus a feedforward of the load cells' rolling-force deviation (KFF), "
                                 "all five gains tuned together: the classical opponent of a controller that reads "
-                                "the load cells", information="loop+force"),
+                                "the load cells", information="loop+force", classical=True),
     "pid-pf-oracle": Baseline("knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
                               "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
                               gain_oracle, information="loop+params"),
@@ -164,21 +176,22 @@ REGISTRY: dict[str, Baseline] = {
                                "schedule's and the entry gauge's force preview over 0.5-20 ms, the load cells): a "
                                "two-degree-of-freedom PID with a feedforward AGC, 17 gains tuned on the tuning plants "
                                "with the measured preview (control.preview); v1 only", preview_ff, loop_only=True,
-                               env_mode="valve", information="loop+force+schedule+gauge"),
+                               env_mode="valve", information="loop+force+schedule+gauge", classical=True),
     "mpc-oracle": Baseline("knows the plant, its state and the disturbances now; model-predictive control of the "
                            "valve at the loop's rate within +-u_max (control.mpc): the bound for a controller of any "
                            "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve",
-                           information="loop+force+pump+params+state"),
+                           information="loop+force+pump+params+state", slow=True),
     "mpc-preview": Baseline("mpc-oracle that also knows the disturbances' and the set-point's course over its horizon "
                             "(an entry gauge's preview, made exact); not deployable; v1 only", mpc, loop_only=True,
-                            env_mode="valve", previews=True, information="loop+force+schedule+gauge+pump+params+state"),
+                            env_mode="valve", previews=True, information="loop+force+schedule+gauge+pump+params+state",
+                            slow=True),
 }
 #: every baseline by name, with what it is
 BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()}
 #: baselines that need the sampled loop (environment version v1)
 LOOP_ONLY: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.loop_only)
-#: the benchmark's default reference: the strongest deployable classical controller
-REFERENCE = "pid-pf-robust"
+#: the benchmark's default reference: the strongest deployable classical controller (`Baseline.reference`)
+REFERENCE = next(name for name, b in REGISTRY.items() if b.reference)
 
 
 def baseline_names(version: str | None = None) -> list[str]:

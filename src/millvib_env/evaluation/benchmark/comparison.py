@@ -131,8 +131,8 @@ def _comparisons(name: str, recs: list, recs_of: Mapping[str, list], reference: 
     return out
 
 
-#: the controllers every other is compared with, where they run (`_comparisons`)
-COMPARED_WITH = ("pid-robust", "pid-oracle")
+#: the controllers every other is compared with, where they run (`_comparisons`; `Baseline.compared_with`)
+COMPARED_WITH = tuple(name for name, b in REGISTRY.items() if b.compared_with)
 
 
 def _compare(result: dict, done: Mapping[str, dict] | None = None) -> None:

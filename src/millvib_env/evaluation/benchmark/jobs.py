@@ -11,6 +11,7 @@ from tqdm.auto import tqdm
 from millvib_env._checks import integer
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import load_controller
+from millvib_env.control.registry import REGISTRY
 from millvib_env.distributed import run_jobs, start_workers
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task
@@ -42,7 +43,7 @@ def _run(ctrl: Controller, seeds, env_kwargs: dict | None = None, **kw) -> list[
 #: episodes per job when a benchmark is spread over Ray
 CHUNK = 50
 #: the baselines whose rows take seconds (a QP every sample): --jobs auto runs worker processes where one runs
-SLOW_BASELINES = ("mpc-oracle", "mpc-preview")
+SLOW_BASELINES = tuple(name for name, b in REGISTRY.items() if b.slow)
 #: --jobs auto's most worker processes (measured on 2 cores only: docs/performance.md)
 AUTO_JOBS_MAX = 4
 #: --jobs auto's fewest plants for worker processes: below it, starting them costs more than they save

@@ -29,9 +29,8 @@ ROOM_BOUNDS = {"pid-pf-oracle": "the per-plant re-tuned classical controller (PI
 
 #: the group 'answer' (`answer_group`): the classical controller of the students' information and its bound
 ANSWER_CLASSICAL, ANSWER_BOUND = "pid-pf-preview", "mpc-preview"
-#: the deployable classical controllers, among which the best is named
-DEPLOYABLE_CLASSICAL = ("pid-paper", "pid-nominal", "pid-robust", "pid-adaptive", "pid-pf-robust", "pid-pf-ff",
-                        "pid-pf-preview")
+#: the deployable classical controllers, among which the best is named (`Baseline.classical`)
+DEPLOYABLE_CLASSICAL = tuple(name for name, b in REGISTRY.items() if b.classical)
 
 
 def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, progress: bool = False,
