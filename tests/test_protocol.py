@@ -8,6 +8,7 @@ import pytest
 from millvib_env._paths import agents_dir
 from millvib_env.cli import main as cli_main
 from millvib_env.control.agents import agent_seeds, list_agents
+from millvib_env.control.factory import load_controller
 from millvib_env.evaluation.benchmark import public_json, run_benchmark
 from millvib_env.evaluation.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
 from millvib_env.tasks import get_task
@@ -317,6 +318,39 @@ def test_a_benchmark_in_worker_processes_equals_the_one_process_run():
     assert one == two and list(two["scenarios"]) == ["pid-robust", "pid-paper"] and two["scenarios"]["pid-paper"]
     with pytest.raises(ValueError, match="jobs = 0 is invalid"):
         run_benchmark(["pid-robust"], jobs=0, **kw)
+
+
+def test_a_benchmark_resolves_each_name_once_and_its_jobs_carry_specs(monkeypatch):
+    """Each controller name is looked up once in the benchmark's process (`resolve_controller`), every training seed
+    of an agent included; a job carries the spec, and the controller a worker builds from it runs the episodes the
+    controller loaded by name runs."""
+    from millvib_env.control import factory
+    from millvib_env.control.factory import build_controller, resolve_controller
+    from millvib_env.evaluation.benchmark import jobs, lineup
+
+    looked_up: list[str] = []
+
+    def counting(name, *a, **kw):
+        looked_up.append(name)
+        return resolve_controller(name, *a, **kw)
+
+    monkeypatch.setattr(lineup, "resolve_controller", counting)
+    sent: list = []
+    monkeypatch.setattr(jobs, "run_jobs", lambda fn, js, **kw: sent.extend(js) or [fn(**j) for j in js])
+    kw = dict(task="rolling", episodes=2, progress=False, scenarios=False, all_seeds=True, reference="pid-pf-robust")
+    result = public_json(run_benchmark(["pid-robust", "ppo-gain-pf-v1-rolling"], jobs=2, **kw))
+    assert sorted(looked_up) == ["pid-pf-robust", "pid-robust", "ppo-gain-pf-v1-rolling"]
+    agent_jobs = [j for j in sent if j["name"] == "ppo-gain-pf-v1-rolling"]
+    assert len(agent_jobs) == 3 and sorted(j["spec"].seed for j in agent_jobs) == [0, 1, 2]
+    assert all(isinstance(j["spec"], factory.ControllerSpec) and "task" not in j for j in sent)
+    assert set(result["controllers"]) == {"pid-pf-robust", "pid-robust", "ppo-gain-pf-v1-rolling"}
+    spec = resolve_controller("ppo-gain-pf-v1-rolling", get_task("rolling"), seed=1)
+    by_name = load_controller("ppo-gain-pf-v1-rolling", "rolling", seed=1)
+    assert build_controller(spec).seed == by_name.seed == 1
+    with pytest.raises(ValueError, match="no training seed 7"):
+        spec.for_seed(7)
+    with pytest.raises(ValueError, match="spec"):
+        build_controller("ppo-gain-pf-v1-rolling")
 
 
 def test_jobs_auto_runs_worker_processes_only_where_they_pay(monkeypatch):

@@ -59,11 +59,11 @@ def _write_files(result: dict, out: Path, task: Task, figures: bool = True) -> l
     if task.name == "startup":
         files.append(_plot_traces(list(result["controllers"]), out / f"traces_{TRACE_SCENARIO}.png",
                                   result["plants"][0], task=task, version=result.get("env_version", "v0"),
-                                  preview=result.get("preview", "exact")))
+                                  preview=result.get("preview", "exact"), specs=result.get("specs")))
     else:
         files.append(_plot_traces(list(result["controllers"]), out / "traces.png", result["plants"][0],
                                   scenario=None, task=task, version=result.get("env_version", "v0"),
-                                  preview=result.get("preview", "exact")))
+                                  preview=result.get("preview", "exact"), specs=result.get("specs")))
     return files
 
 

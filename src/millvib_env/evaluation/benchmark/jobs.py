@@ -10,7 +10,7 @@ from tqdm.auto import tqdm
 
 from millvib_env._checks import integer
 from millvib_env.control.base import Controller
-from millvib_env.control.factory import load_controller
+from millvib_env.control.factory import ControllerSpec, build_controller, load_controller
 from millvib_env.control.registry import REGISTRY
 from millvib_env.distributed import run_jobs, start_workers
 from millvib_env.envs.batch import env_version
@@ -23,7 +23,7 @@ from millvib_env.evaluation.benchmark.protocol import distinct_plant_scenarios
 
 def episode_records(name: str, task: Task, seeds: list[int], env_id: str = "MillVib-GainSchedule-v0",
                     env_kwargs: dict | None = None, agent_seed: int | None = None) -> list[EpisodeRecord]:
-    """One controller's episodes on `seeds` of `task` (a job of a distributed benchmark or sweep: the Task
+    """One controller's episodes on `seeds` of `task`, by name (a job of a distributed sweep: the Task
     crosses to the worker as it is); for an agent, its training seed `agent_seed` (default: the lowest it
     ships), recorded as `agent_seed`. A baseline runs in `env_id`'s version; an agent in its own."""
     ctrl = load_controller(name, task, seed=agent_seed, version=env_version(env_id))
@@ -76,9 +76,10 @@ def _processes(jobs: int | str, own: Mapping) -> int | str:
     return jobs
 
 
-def _settle_auto(processes: int | str, units: list, loaded: dict, n_plants: int, ray: str | None, task: Task) -> int:
+def _settle_auto(processes: int | str, units: list, loaded: dict, specs: Mapping, n_plants: int,
+                 ray: str | None) -> int:
     """`_processes`'s "auto" decided on the runs (`auto_jobs`; none on Ray). `_load_units` left the seeds that
-    workers load unloaded: where the runs stay in this process after all, they are loaded here."""
+    workers build unbuilt: where the runs stay in this process after all, they are built here from their specs."""
     if processes != "auto":
         return int(processes)
     if ray is not None:
@@ -87,7 +88,7 @@ def _settle_auto(processes: int | str, units: list, loaded: dict, n_plants: int,
     if chosen == 1:
         for name, seed in units:
             if (name, seed) not in loaded:
-                loaded[(name, seed)] = load_controller(name, task, seed=seed)
+                loaded[(name, seed)] = build_controller(specs[(name, seed)])
     return chosen
 
 
@@ -104,16 +105,23 @@ def _chunks(plants: list[int], processes: int | None, agent: bool) -> list[list[
 
 def scenario_records(name: str, task: Task, plant: int, env_id: str = "MillVib-GainSchedule-v0",
                      agent_seed: int | None = None, env_kwargs: dict | None = None) -> dict[str, dict]:
-    """`_scenario_records` of one controller by name (a job of a distributed benchmark: the Task crosses to the
-    worker as it is); an agent on its training seed `agent_seed`, a baseline in `env_id`'s version."""
+    """`_scenario_records` of one controller by name (the benchmark's own jobs build theirs from specs,
+    `benchmark_job`); an agent on its training seed `agent_seed`, a baseline in `env_id`'s version."""
     return _scenario_records(load_controller(name, task, seed=agent_seed, version=env_version(env_id)), plant,
                              env_kwargs)
 
 
-def benchmark_job(kind: str, **job):
-    """One job of a distributed benchmark: a controller's episodes on some plants (`episode_records`) or its
-    named scenarios (`scenario_records`)."""
-    return (episode_records if kind == "episodes" else scenario_records)(**job)
+def benchmark_job(kind: str, spec: ControllerSpec, env_kwargs: dict | None = None, seeds: list[int] | None = None,
+                  plant: int | None = None, **_) -> list[EpisodeRecord] | dict[str, dict]:
+    """One job of a distributed benchmark: the controller `spec` names (resolved once, in the benchmark's process)
+    built here, and its episodes on plants `seeds` ("episodes") or its named scenarios on `plant` ("scenarios").
+    The job's other keys (its controller's name and training seed) are the benchmark's bookkeeping."""
+    ctrl = build_controller(spec)
+    if kind == "episodes":
+        assert seeds is not None
+        return _run(ctrl, seeds, env_kwargs)
+    assert plant is not None
+    return _scenario_records(ctrl, plant, env_kwargs)
 
 
 def _is_slow(name: str, seed: int | None) -> bool:
@@ -126,12 +134,13 @@ def _split_slow(jobs: list[dict]) -> tuple[list[dict], list[dict]]:
     return [j for j, s in zip(jobs, slow) if s], [j for j, s in zip(jobs, slow) if not s]
 
 
-def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, ray: str | None,
+def _collect_records(units: list, loaded: dict, specs: Mapping, plants: list[int], ray: str | None,
                      progress: bool, processes: int = 1, label: str = "benchmark", scenarios: bool = False,
                      complete: Callable[[str, list], None] | None = None, env_kwargs: Mapping[str, dict] | None = None
                      ) -> tuple[dict[tuple, list[EpisodeRecord]], dict[str, dict]]:
     """Every unit's (controller, agent seed) episode records on `plants` and, with `scenarios`, each controller's
-    named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs
+    named scenarios on the first plant (its first unit's: an agent's lowest seed). In this process, or as jobs of
+    the units' specs (`specs`: each name resolved once, in this process; the workers build from them)
     (`_chunks`, and one per controller's scenarios) on Ray or in `processes` local worker processes: each episode
     depends only on its seeds, so the numbers are the same. The slow rows' jobs (agents, the MPC bounds: episodes
     and scenarios) are submitted first, so that no long job starts at the end, and the short ones after them
@@ -147,12 +156,11 @@ def _collect_records(units: list, loaded: dict, plants: list[int], env_id: str, 
             firsts.setdefault(n, (n, s))
     scenario_units = list(firsts.values())
     if ray is not None or processes > 1:
-        task_of = {n: c.task for (n, _), c in loaded.items()}  # each controller's, bound where it was loaded
-        episodes = [{"kind": "episodes", "name": n, "task": task_of[n], "seeds": chunk, "env_id": env_id,
-                     "agent_seed": s, "env_kwargs": kw_of.get(n)}
+        episodes = [{"kind": "episodes", "name": n, "spec": specs[(n, s)], "seeds": chunk, "agent_seed": s,
+                     "env_kwargs": kw_of.get(n)}
                     for n, s in units for chunk in _chunks(plants, processes if ray is None else None, s is not None)]
-        named = [{"kind": "scenarios", "name": n, "task": task_of[n], "plant": plants[0], "env_id": env_id,
-                  "agent_seed": s, "env_kwargs": kw_of.get(n)} for n, s in scenario_units]
+        named = [{"kind": "scenarios", "name": n, "spec": specs[(n, s)], "plant": plants[0], "agent_seed": s,
+                  "env_kwargs": kw_of.get(n)} for n, s in scenario_units]
         (slow_named, named), (slow_episodes, episodes) = _split_slow(named), _split_slow(episodes)
         jobs = slow_named + slow_episodes + episodes + named
         # an SB3 agent's workers import torch and SB3 once (an exported graph needs neither)

@@ -10,9 +10,9 @@ from typing import Any, Mapping, Sequence
 from tqdm.auto import tqdm
 
 from millvib_env._checks import shown
-from millvib_env.control.agents import agent_base, agent_seeds, list_agents
+from millvib_env.control.agents import agent_base, list_agents
 from millvib_env.control.base import Controller
-from millvib_env.control.factory import load_controller
+from millvib_env.control.factory import ControllerSpec, build_controller, resolve_controller
 from millvib_env.control.information import from_env_kwargs
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
@@ -35,31 +35,37 @@ DEPLOYABLE_CLASSICAL = tuple(name for name, b in REGISTRY.items() if b.classical
 
 def _load_units(names: list[str], task: Task, all_seeds: bool, version: str, progress: bool = False,
                 own: Mapping[str, Controller] | None = None,
-                here: bool = True) -> tuple[list[tuple[str, int | None]], dict]:
-    """The runs of a benchmark, (name, training seed or None for a baseline), and their controllers:
+                here: bool = True) -> tuple[list[tuple[str, int | None]], dict, dict]:
+    """The runs of a benchmark, (name, training seed or None for a baseline), their controllers and their specs:
     every agent on its lowest seed, or on every seed it ships (`all_seeds`); a user's `own` controllers as
-    they are. Where the runs go to workers (`here` False) only each agent's lowest seed is loaded in this
-    process (for its environment and the named scenarios): the workers load the seeds they run."""
+    they are (no spec: they run in this process). Each name is resolved once (`resolve_controller`); where the runs
+    go to workers (`here` False) only each agent's lowest seed is loaded in this process (for its environment and
+    the named scenarios): the workers build the seeds they run from their specs."""
 
     units: list[tuple[str, int | None]] = []
     loaded: dict[tuple, Controller] = {}
+    specs: dict[tuple, ControllerSpec] = {}
     for n in tqdm(names, desc=f"benchmark {task.name}: loading", unit="controller", disable=not progress, leave=False):
         if own and n in own:
             units.append((n, None))
             loaded[(n, None)] = _on_task(own[n], task)
             continue
-        first = load_controller(n, task, version=version)
+        spec = resolve_controller(n, task, version=version)
+        first = build_controller(spec)
         if first.seed is not None:  # a trained policy (an exported graph holds one seed)
-            for s in (agent_seeds(n) if all_seeds and first.card is not None else [first.seed]):
+            every = spec.kind == "agent" and all_seeds and first.card is not None
+            for s in ([sd for sd, _ in spec.paths] if every else [first.seed]):
                 units.append((n, s))
+                specs[(n, s)] = spec.for_seed(s) if spec.kind == "agent" else spec
                 if s == first.seed:
                     loaded[(n, s)] = first
                 elif here:
-                    loaded[(n, s)] = load_controller(n, task, seed=s)
+                    loaded[(n, s)] = build_controller(specs[(n, s)])
         else:
             units.append((n, None))
             loaded[(n, None)] = first
-    return units, loaded
+            specs[(n, None)] = spec
+    return units, loaded, specs
 
 
 def _on_task(ctrl: Controller, task: Task) -> Controller:

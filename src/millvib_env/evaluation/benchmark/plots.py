@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import save_figure
-from millvib_env.control.factory import load_controller
+from millvib_env.control.factory import build_controller, load_controller
 from millvib_env.envs.config import DEFAULT_VERSION
 from millvib_env.tasks import Task
 from millvib_env.evaluation.evaluate import trace_episode
@@ -23,7 +23,7 @@ TRACE_SCENARIO = "low-damping-high-leakage"
 
 
 def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, scenario: str | None = TRACE_SCENARIO,
-                 version: str = DEFAULT_VERSION, preview: str = "exact") -> Path:
+                 version: str = DEFAULT_VERSION, preview: str = "exact", specs: Mapping | None = None) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -34,7 +34,8 @@ def _plot_traces(names: Sequence[str], path: Path, seed: int, *, task: Task, sce
     u_max = task.configs[version].base_params.u_max
     for k, name in enumerate(names):
         color = f"C{k % 10}"
-        ctrl = load_controller(name, task, version=version)
+        spec = (specs or {}).get(name)  # the benchmark's own lookup, where it made one
+        ctrl = build_controller(spec) if spec is not None else load_controller(name, task, version=version)
         tr = trace_episode(ctrl, scenario=scenario, seed=seed, task=task,
                            env_kwargs=_preview_kwargs({name: ctrl}, preview).get(name))
         info = tr["info"]

@@ -141,6 +141,6 @@ def _scenario_rows(result: dict) -> list[str]:
 
 
 def public_json(result: dict) -> dict:
-    """The summary without the per-episode records (those go to the CSV) and without timings, so the
-    same inputs give the same bytes."""
-    return {k: v for k, v in result.items() if k not in ("records", "wall_time_s")}
+    """The summary without the per-episode records (those go to the CSV), the controllers' specs and timings, so
+    the same inputs give the same bytes."""
+    return {k: v for k, v in result.items() if k not in ("records", "wall_time_s", "specs")}

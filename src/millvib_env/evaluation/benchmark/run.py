@@ -10,7 +10,6 @@ from millvib_env._checks import shown
 from millvib_env.control.agents import list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
-from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS
 from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.verdict import information_verdict
@@ -50,7 +49,6 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
         raise ValueError(f"--env-version {shown(env_version)} is invalid: one of {list(ENV_VERSIONS)}")
     if preview not in PREVIEW_GAUGES:
         raise ValueError(f"--preview {shown(preview)} is invalid: one of {list(PREVIEW_GAUGES)}")
-    env_id = env_id_for("gain", env_version)
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
     if episodes is None:
@@ -71,16 +69,19 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     result = _header(t, env_version, reference, seed, episodes, all_seeds)
     result["preview"] = preview
     label = f"benchmark {t.name}"
-    units, loaded = _load_units(names, t, all_seeds, env_version, progress, own, here=ray is None and processes == 1)
-    firsts = {name: loaded[next(u for u in units if u[0] == name and u in loaded)] for name in names}
+    units, loaded, specs = _load_units(names, t, all_seeds, env_version, progress, own,
+                                       here=ray is None and processes == 1)
+    first_unit = {name: next(u for u in units if u[0] == name and u in loaded) for name in names}
+    firsts = {name: loaded[u] for name, u in first_unit.items()}
+    result["specs"] = {name: specs[u] for name, u in first_unit.items() if u in specs}  # for the traces' plot
     sets = {name: information_of(name, c, t, env_version) for name, c in firsts.items()}
     extra = _preview_kwargs(firsts, preview)
-    processes = _settle_auto(processes, units, loaded, episodes, ray, t)
+    processes = _settle_auto(processes, units, loaded, specs, episodes, ray)
     plants = t.heldout_plants(episodes, seed)  # after the controllers: a bad name fails before any work
     result["plants"] = plants
     start = time.time()
     early = _Early(names, reference)
-    records, result["scenarios"] = _collect_records(units, loaded, plants, env_id, ray, progress, processes, label,
+    records, result["scenarios"] = _collect_records(units, loaded, specs, plants, ray, progress, processes, label,
                                                     scenarios=scenarios, complete=early, env_kwargs=extra)
     for name in names:
         recs = _records_of(records, name)
