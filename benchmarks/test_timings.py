@@ -120,7 +120,7 @@ READERS = {
 
 
 @pytest.mark.benchmark(group="refusals")
-@pytest.mark.parametrize("name", list(READERS))
+@pytest.mark.parametrize("name", list(READERS), ids=[n.replace("/", "-") for n in READERS])  # no path in an id
 def test_refusal(benchmark, tmp_path, name):
     """How long a command takes to refuse a damaged config file, as a user meets it (a fresh `millvib` process,
     imports included, over a copy of configs/, `MILLVIB_CONFIGS`): the file replaced by each of `DAMAGE`'s
