@@ -330,7 +330,7 @@ def test_the_benchmarks_roles_are_fields_of_the_registry_entries_and_consistent(
     classical controller reads no oracle's information, the reference is one of them and the only one, and a slow
     baseline commands the valve of the sampled loop."""
     from millvib_env.control.registry import REFERENCE, REGISTRY
-    from millvib_env.evaluation.benchmark import COMPARED_WITH, DEPLOYABLE_CLASSICAL, SLOW_BASELINES
+    from millvib_env.evaluation.benchmark import COMPARED_WITH, DEPLOYABLE_CLASSICAL, ROOM_BOUNDS, SLOW_BASELINES
 
     assert [n for n, b in REGISTRY.items() if b.reference] == [REFERENCE]
     assert REFERENCE in DEPLOYABLE_CLASSICAL
@@ -340,3 +340,8 @@ def test_the_benchmarks_roles_are_fields_of_the_registry_entries_and_consistent(
         assert not atoms & {"params", "state", "pump"}, name
     assert set(COMPARED_WITH) == {n for n, b in REGISTRY.items() if b.compared_with} and COMPARED_WITH
     assert SLOW_BASELINES and all(REGISTRY[n].env_mode == "valve" and REGISTRY[n].loop_only for n in SLOW_BASELINES)
+    # the room's bounds know the plant (none is deployable), in the order of their fields, the result's order
+    assert list(ROOM_BOUNDS) == ["pid-pf-oracle", "lqr-oracle", "mpc-oracle", "mpc-preview"]
+    assert all(REGISTRY[n].bound == what and "params" in REGISTRY[n].information.split("+")
+               for n, what in ROOM_BOUNDS.items())
+    assert not set(ROOM_BOUNDS) & set(DEPLOYABLE_CLASSICAL)

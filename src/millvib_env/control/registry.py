@@ -26,8 +26,8 @@ from millvib_env.envs.config import EnvConfig
 from millvib_env.params import PAPER_GAINS
 from millvib_env.tasks import Task
 
-__all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "baseline_names", "fixed_gains",
-           "tuned_gains", "paper_gains"]
+__all__ = ["Baseline", "REGISTRY", "BASELINES", "LOOP_ONLY", "REFERENCE", "ROOM_BOUNDS", "baseline_names",
+           "fixed_gains", "tuned_gains", "paper_gains"]
 
 #: a builder: (name, the task, environment version, the task's env config, its gain map) -> the controller
 Builder = Callable[[str, Task, str, EnvConfig, GainMap], Controller]
@@ -65,6 +65,10 @@ class Baseline:
     compared_with: bool = False
     #: a command every loop sample from a QP: `--jobs auto` starts worker processes where it runs
     slow: bool = False
+    #: a bound the benchmark's room to learn is measured with (it knows the plant: not deployable): what it stands
+    #: for ("" where it is none), and its place among the bounds (`ROOM_BOUNDS`' order, the result's `room.bounds`)
+    bound: str = ""
+    bound_order: int = 0
 
     @classmethod
     def fixed(cls, description: str, gains: GainsFn | None = None, information: str = "loop", *,
@@ -162,7 +166,8 @@ REGISTRY: dict[str, Baseline] = {
     "pid-adaptive": Baseline("estimates c1 and Ct online (RLS with forgetting) and takes the oracle's gains for the "
                              "estimate", adaptive, classical=True),
     "lqr-oracle": Baseline("knows the true c1 and Ct; LQR with integral action for PID + pressure feedback on the "
-                           "linearised plant; not deployable", lqr_oracle, information="loop+params"),
+                           "linearised plant; not deployable", lqr_oracle, information="loop+params",
+                           bound="a per-plant LQR with integral action", bound_order=1),
     "pid-pf-robust": Baseline.fixed("one fixed PID + pressure feedback (KP, KI, KD, KPL) for the task's whole range "
                                     "of c1 and Ct: the active damping a plant engineer commissions; the benchmark's "
                                     "reference", classical=True, reference=True),
@@ -171,7 +176,8 @@ REGISTRY: dict[str, Baseline] = {
                                 "the load cells", information="loop+force", classical=True),
     "pid-pf-oracle": Baseline("knows the true c1 and Ct; PID + pressure-feedback gains tuned offline per plant (grid, "
                               "interpolated): the bound for gain scheduling with pressure feedback on a fixed plant",
-                              gain_oracle, information="loop+params"),
+                              gain_oracle, information="loop+params",
+                              bound="the per-plant re-tuned classical controller (PID + pressure feedback)"),
     "pid-pf-preview": Baseline("pid-pf-robust plus a linear feedforward of what the preview students read (the pass "
                                "schedule's and the entry gauge's force preview over 0.5-20 ms, the load cells): a "
                                "two-degree-of-freedom PID with a feedforward AGC, 17 gains tuned on the tuning plants "
@@ -180,11 +186,13 @@ REGISTRY: dict[str, Baseline] = {
     "mpc-oracle": Baseline("knows the plant, its state and the disturbances now; model-predictive control of the "
                            "valve at the loop's rate within +-u_max (control.mpc): the bound for a controller of any "
                            "structure; not deployable; v1 only", mpc, loop_only=True, env_mode="valve",
-                           information="loop+force+pump+params+state", slow=True),
+                           information="loop+force+pump+params+state", slow=True,
+                           bound="model-predictive control with the plant's state, within +-u_max", bound_order=2),
     "mpc-preview": Baseline("mpc-oracle that also knows the disturbances' and the set-point's course over its horizon "
                             "(an entry gauge's preview, made exact); not deployable; v1 only", mpc, loop_only=True,
                             env_mode="valve", previews=True, information="loop+force+schedule+gauge+pump+params+state",
-                            slow=True),
+                            slow=True, bound="mpc-oracle with the disturbances' course over its horizon (a preview)",
+                            bound_order=3),
 }
 #: every baseline by name, with what it is
 BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()}
@@ -192,6 +200,10 @@ BASELINES: dict[str, str] = {name: b.description for name, b in REGISTRY.items()
 LOOP_ONLY: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.loop_only)
 #: the benchmark's default reference: the strongest deployable classical controller (`Baseline.reference`)
 REFERENCE = next(name for name, b in REGISTRY.items() if b.reference)
+#: the bounds the benchmark's room is measured with, each with what it stands for, in their order
+#: (`Baseline.bound`): the first group measures the room without preview, mpc-preview with it
+ROOM_BOUNDS: dict[str, str] = {name: b.bound for name, b in sorted(REGISTRY.items(),
+                                                                  key=lambda item: item[1].bound_order) if b.bound}
 
 
 def baseline_names(version: str | None = None) -> list[str]:

@@ -14,17 +14,11 @@ from millvib_env.control.agents import agent_base, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.factory import ControllerSpec, build_controller, resolve_controller
 from millvib_env.control.information import from_env_kwargs
-from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
+from millvib_env.control.registry import REFERENCE, REGISTRY, ROOM_BOUNDS, baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.tasks import Task
 
 
-#: the bounds the room is measured with: controllers that know the plant (not deployable), each with what it
-#: stands for; the first group measures the room without preview, mpc-preview with it
-ROOM_BOUNDS = {"pid-pf-oracle": "the per-plant re-tuned classical controller (PID + pressure feedback)",
-               "lqr-oracle": "a per-plant LQR with integral action",
-               "mpc-oracle": "model-predictive control with the plant's state, within +-u_max",
-               "mpc-preview": "mpc-oracle with the disturbances' course over its horizon (a preview)"}
 
 
 #: the group 'answer' (`answer_group`): the classical controller of the students' information and its bound
