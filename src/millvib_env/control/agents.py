@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -22,12 +23,14 @@ from millvib_env.control.manifest import verify_agent
 from millvib_env.control.named import resolve_named_gains_for
 from millvib_env.control.normalization import STATS_FILE, ObsStats, load_obs_stats, normalizes_obs
 from millvib_env.control.registry import baseline_names
+from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task, takes_task
 from millvib_env.threads import one_torch_thread, one_xla_thread
 
-__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "algo_class", "resolved_backend", "deterministic_actor",
-           "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders", "list_agents", "agent_folder", "agent_seeds"]
+__all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "Learner", "learner", "algo_class", "resolved_backend",
+           "deterministic_actor", "agent_env_kwargs", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
+           "list_agents", "agent_folder", "agent_seeds"]
 
 
 #: the algorithms an agent may be trained with (`millvib train --algo`)
@@ -72,10 +75,58 @@ def algo_class(algo: str, backend: str = "sb3"):
     return RecurrentPPO
 
 
+@dataclass(frozen=True)
+class Learner:
+    """An algorithm's name turned into its learner once (`learner`): the name, the library that trains it and the
+    class, which `millvib train` builds, resumes and saves with."""
+
+    algo: str
+    backend: str
+    cls: Any
+
+    def portable(self, path: Path) -> str:
+        """The library the model saved at `path` is for, once made portable: an sbx SAC is rewritten as SB3's SAC
+        with the same weights (`control.sbx_to_sb3`), so the agent loads, runs and exports without JAX (a run's
+        checkpoints, for --resume, stay sbx's); any other model is left as it was trained."""
+        if self.backend != "sbx" or self.algo != "sac":
+            return self.backend
+        sb3_sac_from_sbx(self.cls.load(path, device="cpu")).save(path)
+        return "sb3"
+
+
+def learner(algo: str, backend: str = "auto") -> Learner:
+    """The `Learner` of an algorithm name (any case) and a backend ("auto": `resolved_backend`); a clear error for
+    a name or backend there is none of."""
+    algo = str(algo).lower()
+    backend = resolved_backend(algo, backend)
+    return Learner(algo, backend, algo_class(algo, backend))
+
+
 #: what an agent's card may set in its environment: its action, observation and reward, never the
 #: episode (plants, disturbances, start, length) that every controller of the task must share
 AGENT_ENV_KEYS = frozenset({"config", "residual", "observe_params", "observe_phase", "actions", "observation",
                             "reward"})
+
+
+def agent_env_kwargs(raw, task: Task, version: str) -> dict:
+    """The env keyword arguments an agent trains with: a hyperparameter file's env_kwargs with their named gain sets
+    resolved on `task` in env version `version` and the task's config. Refused when training starts (not when the
+    finished agent is loaded) where a card could not carry them: not a mapping, a key that changes the episode
+    (`AGENT_ENV_KEYS`), another task's config."""
+
+    raw = raw or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"env_kwargs = {shown(raw)} in the hyperparameters is invalid: a mapping")
+    episode_keys = sorted(set(raw) - AGENT_ENV_KEYS, key=repr)
+    if episode_keys:
+        raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
+                         f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
+    if "config" in raw and raw["config"] != task.config:
+        raise ValueError(f"env_kwargs config = {shown(raw['config'])} in the hyperparameters is not task "
+                         f"{shown(task.name)}'s ({shown(task.config)}): choose the task with --task")
+    out = resolve_named_gains_for(raw, task, version)
+    out["config"] = task.config  # every task's, startup's too: the card alone rebuilds the environment
+    return out
 
 
 #: the card's keys the project reads, with the type each must have

@@ -29,11 +29,10 @@ import numpy as np
 from millvib_env._checks import integer, shown, shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
 from millvib_env.control.factory import load_controller
-from millvib_env.control.agents import AGENT_ENV_KEYS, ALGOS, SEED_FOLDER, AgentPolicy, algo_class, resolved_backend
+from millvib_env.control.agents import ALGOS, SEED_FOLDER, AgentPolicy, agent_env_kwargs, learner
 from millvib_env.control.manifest import EVAL_CURVE
-from millvib_env.control.named import resolve_named_gains, resolve_named_gains_for
+from millvib_env.control.named import resolve_named_gains
 from millvib_env.control.normalization import STATS_FILE, save_obs_stats
-from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
@@ -50,27 +49,6 @@ __all__ = ["load_hyperparams", "train", "train_seeds", "train_from_cli", "resolv
 AGENT_FILES = frozenset({"card.json", "model.zip", "vecnormalize.npz", EVAL_CURVE})
 #: validation plants per model card: the first of the task's validation seeds
 N_VALIDATION = 40
-
-
-def _agent_env_kwargs(raw, task: Task, version: str) -> dict:
-    """The env keyword arguments an agent trains with: the hyperparameters' env_kwargs with their named gain sets
-    resolved on `task` in env version `version` and the task's config. Refused now (not when the finished agent is
-    loaded) where a card could not carry them: not a mapping, a key that changes the episode
-    (`control.agents.AGENT_ENV_KEYS`), another task's config."""
-
-    raw = raw or {}
-    if not isinstance(raw, dict):
-        raise ValueError(f"env_kwargs = {shown(raw)} in the hyperparameters is invalid: a mapping")
-    episode_keys = sorted(set(raw) - AGENT_ENV_KEYS, key=repr)
-    if episode_keys:
-        raise ValueError(f"env_kwargs {episode_keys} in the hyperparameters would change the episode the agent "
-                         f"meets (its plants, disturbances or start); allowed: {sorted(AGENT_ENV_KEYS)}")
-    if "config" in raw and raw["config"] != task.config:
-        raise ValueError(f"env_kwargs config = {shown(raw['config'])} in the hyperparameters is not task "
-                         f"{shown(task.name)}'s ({shown(task.config)}): choose the task with --task")
-    out = resolve_named_gains_for(raw, task, version)
-    out["config"] = task.config  # every task's, startup's too: the card alone rebuilds the environment
-    return out
 
 
 def _zero_action_is_a_controller(env_id: str, env_kwargs: dict) -> bool:
@@ -214,8 +192,8 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     ("last"), the best evaluated one ("best", the starting policy included, with the observation
     statistics of its moment) or the best evaluated one after training started ("trained": never the
     starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" or "sbx"
-    (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`resolved_backend`: sbx for SAC where it
-    is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
+    (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`control.agents.learner`: sbx for SAC where
+    it is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
     card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX. The card's
     validation scores the agent on the first `validation_episodes` of the task's validation plants (default 40,
     the shipped agents' figure; fewer for a quick trial, whose card then says so).
@@ -232,17 +210,19 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
 
     from millvib_env.envs.vec_env import make_vec_env
 
-    algo = algo.lower()
-    backend = resolved_backend(algo, backend)
-    cls = algo_class(algo, backend)
+    if str(algo).lower() not in ALGOS:
+        raise ValueError(f"algo = {shown(algo)} is invalid: one of {list(ALGOS)}")
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     the_task = task
     _check_id_runs_task(env_id, the_task)
     validation_episodes = integer("--validation-episodes", validation_episodes, lo=1,
                                   hi=len(the_task.seeds["validation"]))  # never a held-out plant
     train_seed, eval_seed = the_task.train_env_seed(seed), the_task.eval_env_seed(seed)
-    hp, n_envs, total, policy, normalize = _hyperparams(algo, env_id, config, n_timesteps)
-    env_kwargs = _agent_env_kwargs(hp.pop("env_kwargs", None), the_task, env_version(env_id))
+    hp, n_envs, total, policy, normalize = _hyperparams(str(algo).lower(), env_id, config, n_timesteps)
+    # the names turned into objects, once: the learner, and the environment's named gain sets
+    lrn = learner(algo, backend)
+    algo, backend, cls = lrn.algo, lrn.backend, lrn.cls
+    env_kwargs = agent_env_kwargs(hp.pop("env_kwargs", None), the_task, env_version(env_id))
     source, env_kwargs = _init_source(init_from, resume, algo, env_id, the_task, env_kwargs)
     torch.set_num_threads(1)  # small networks: threads cost more than they give
 
@@ -268,13 +248,11 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
                 reset_num_timesteps=not resume, tb_log_name=algo)
     wall = time.time() - start
     selected = _keep_policy(run, model, venv, eval_cb, select)
-    model_format = _portable_model(run, cls, algo, backend)
+    model_format = lrn.portable(run / "model.zip")
     card = _run_card(algo, env_id, the_task, backend, model_format, env_kwargs, seed, model, n_envs, wall, command,
                      hp, policy, normalize, run, selected, n_eval_episodes, select, note, init_from, source,
                      critic_warmup)
-    _validated(card, run, the_task, validation_episodes, progress)
-    if save_dir:
-        _save_agent(Path(save_dir), run, card)
+    _finish(card, run, the_task, validation_episodes, progress, None if not save_dir else Path(save_dir))
     venv.close()
     eval_env.close()
     return card
@@ -333,15 +311,24 @@ def _run_card(algo, env_id, the_task, backend, model_format, env_kwargs, seed, m
     return card
 
 
-def _validated(card: dict, run: Path, the_task: Task, validation_episodes: int, progress: bool) -> None:
-    """Write the card, score the agent on the task's first validation plants, and write it again with them."""
-    write_text_atomic(run / "card.json", json.dumps(card, indent=2))
+def _finish(card: dict, run: Path, the_task: Task, validation_episodes: int, progress: bool,
+            dest: Path | None) -> None:
+    """Score the agent on the task's first validation plants (`validation_result` writes the card it loads with),
+    write the card with them into the run folder, and (`dest`, --save-dir) the agent folder: model, statistics,
+    curve and card, replaced as a whole."""
     if progress:  # a few seconds with no bar: say what they are
         first = the_task.seeds["validation"].start
         print(f"train: scoring the agent for its card on {the_task.name}'s validation plants {first}-"
               f"{first + validation_episodes - 1}", file=sys.stderr, flush=True)
     card["validation"] = validation_result(run, card, episodes=validation_episodes)
+    if dest is not None:
+        card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
     write_text_atomic(run / "card.json", json.dumps(card, indent=2))
+    if dest is not None:
+        with atomic_folder(dest) as tmp:
+            for src in (run / "model.zip", run / "vecnormalize.npz", run / "eval" / EVAL_CURVE, run / "card.json"):
+                if src.exists():
+                    shutil.copyfile(src, tmp / src.name)
 
 
 def _init_source(init_from: str | None, resume: bool, algo: str, env_id: str, task: Task, env_kwargs: dict):
@@ -410,27 +397,6 @@ def _keep_policy(run: Path, model, venv, eval_cb, select: str) -> dict | None:
     if normalized:
         save_obs_stats(venv, run / STATS_FILE)
     return None
-
-
-def _portable_model(run: Path, cls, algo: str, backend: str) -> str:
-    """The library the run's model.zip is for: an sbx SAC is rewritten as SB3's SAC with the same weights
-    (`control.sbx_to_sb3`), so the agent loads, runs and exports without JAX (its checkpoints, for --resume,
-    stay sbx's); any other model as it was trained."""
-    if backend != "sbx" or algo != "sac":
-        return backend
-    sb3_sac_from_sbx(cls.load(run / "model.zip", device="cpu")).save(run / "model.zip")
-    return "sb3"
-
-
-def _save_agent(dest: Path, run: Path, card: dict) -> None:
-    """The agent folder `dest` (--save-dir): model, statistics, curve and card, replaced as a whole."""
-
-    card["name"] = dest.parent.name if SEED_FOLDER.fullmatch(dest.name) else dest.name
-    with atomic_folder(dest) as tmp:
-        for src in (run / "model.zip", run / "vecnormalize.npz", run / "eval" / EVAL_CURVE):
-            if src.exists():
-                shutil.copyfile(src, tmp / src.name)
-        write_text_atomic(tmp / "card.json", json.dumps(card, indent=2))
 
 
 def validation_result(folder: str | Path, card: dict | None = None, episodes: int = N_VALIDATION) -> dict:
