@@ -273,6 +273,24 @@ def test_train_steps(benchmark, tmp_path, algo, steps):
 
 
 @pytest.mark.benchmark(group="pieces")
+@pytest.mark.parametrize("sets", [1, 25])
+def test_tuning_episodes(benchmark, sets):
+    """What a tuning's evaluation costs an episode (`tuning.search.mean_costs`): `sets` fixed PID + pressure-feedback
+    gain sets on the rolling task's 32 pid-robust tuning plants, in one batch (32 or 800 environments, as one search
+    or the 25 grid plants of an oracle table in lockstep would run them). Equal rates say the batch's size buys
+    nothing: the compiled kernel, per episode, is the cost."""
+    from millvib_env.tasks import get_task
+    from millvib_env.tuning.baselines import tuning_seeds
+    from millvib_env.tuning.search import mean_costs
+
+    task = get_task("rolling")
+    seeds = tuning_seeds(task)["robust"]
+    gains = np.repeat(np.array([[6.0, 8.0, 2.0, -4.0]]), sets, axis=0)  # log10 KP, KI, KD, KPL
+    benchmark.pedantic(mean_costs, args=(gains, seeds), kwargs={"task": task}, rounds=3, warmup_rounds=1)
+    benchmark.extra_info["episodes"] = sets * len(seeds)
+
+
+@pytest.mark.benchmark(group="pieces")
 def test_one_plant_second(benchmark):
     """One simulated second of the paper's nominal plant, the fast integrator (the engine under every env)."""
     from millvib_env.plant.integrate import simulate

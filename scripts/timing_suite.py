@@ -37,7 +37,7 @@ def _row(b: dict) -> str:
             wall += f", slowest {s['max']:.3g} s"
         return f"| {name} | `{info['command']}` | {wall} | {cpu_text} | {s['rounds']} |"
     rate = ""
-    for key, unit in (("env_steps", "env steps/s"), ("samples", "samples/s")):
+    for key, unit in (("env_steps", "env steps/s"), ("samples", "samples/s"), ("episodes", "episodes/s")):
         if key in info:
             rate = f"; {info[key] / s['median']:,.0f} {unit}"
     if "kernel_share" in info:

@@ -4,6 +4,7 @@ traceback, a hang or a silent NaN."""
 import json
 import math
 import os
+import re
 import shutil
 
 import numpy as np
@@ -257,6 +258,19 @@ def test_hyperparameters_that_change_the_episode_are_refused_before_training(tmp
                               "--log-dir", str(tmp_path / "logs"), "--save-dir", str(tmp_path / "agent")], capsys)
     assert what in line, line
     assert not (tmp_path / "logs").exists() and not (tmp_path / "agent").exists()
+
+@pytest.mark.parametrize("algo, backend, what", [("a2c", "auto", "algo = 'a2c'"), ("PPO", "jax", "backend = 'jax'"),
+                                                ("recurrentppo", "sbx", "for backend 'sbx'")])
+def test_an_algorithm_or_backend_there_is_no_learner_for_is_refused_before_training(tmp_path, algo, backend, what):
+    """`train` turns its algorithm's name into a learner once (`control.agents.learner`); a name or library it has
+    none for is a ValueError of one line naming it, before a run folder is made."""
+    from millvib_env.training.train import train
+
+    with pytest.raises(ValueError, match=re.escape(what)) as err:
+        train(algo, backend=backend, n_timesteps=64, log_dir=str(tmp_path / "logs"), progress=False)
+    assert "\n" not in str(err.value)
+    assert not (tmp_path / "logs").exists()
+
 
 @pytest.mark.parametrize("name", ["pid-robust", "mpc-oracle"])
 def test_a_from_task_cycle_between_control_configs_is_refused_in_one_line(damaged_configs, capsys, name):
