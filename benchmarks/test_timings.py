@@ -337,7 +337,7 @@ def test_mpc_samples(benchmark, name):
     def samples() -> None:
         for _ in range(50):
             u = ctrl.teacher_commands()
-            venv.step((u / venv.core.u_range)[:, None].astype(np.float32))
+            venv.step((u / venv.core.settings.u_range)[:, None].astype(np.float32))
 
     benchmark.pedantic(samples, rounds=5, warmup_rounds=1)
     benchmark.extra_info["samples"] = 50 * 40

@@ -70,7 +70,7 @@ def _plant_episodes(task: str, seeds: list[int], episodes: int) -> tuple[list, l
                          f"{len(t.seeds['tuning'])} tuning seeds")
     batch = EpisodeBatch("MillVib-Valve-v1", len(seeds), config=t.config)
     batch.reset(seeds)
-    drawn = [d.name for d in batch.core.cfg.randomize]
+    drawn = [d.name for d in batch.core.settings.cfg.randomize]
     pins = [{k: float(getattr(batch.core.params[i], k)) for k in drawn} for i in range(len(seeds))]
     first = t.seeds["tuning"].start
     return [[first + episodes * j + k for k in range(episodes)] for j in range(len(seeds))], pins

@@ -35,7 +35,7 @@ from millvib_env.envs.batch import EpisodeBatch
 env_id, steps, traced = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 b = EpisodeBatch(env_id, 64, config="startup")
 b.reset(list(range(64)))
-a = np.random.default_rng(0).uniform(-0.3, 0.3, (WARM + steps, 64, b.core.act_dim))
+a = np.random.default_rng(0).uniform(-0.3, 0.3, (WARM + steps, 64, b.core.settings.act_dim))
 for k in range(WARM):
     b.step(a[k])
 attempts = 0
@@ -47,7 +47,7 @@ for k in range(WARM, WARM + steps):
     if k < WARM + traced:
         first4 += int(b.core.n_steps[:4].sum())
 wall = time.perf_counter() - t
-print(json.dumps({"period_s": b.core.period_s, "steps_per_s": 64 * steps / wall,
+print(json.dumps({"period_s": b.core.settings.period_s, "steps_per_s": 64 * steps / wall,
                   "attempts_per_period": attempts / (64 * steps), "attempts_window": first4 / (4 * traced)}))
 """
 
@@ -73,7 +73,7 @@ def tracer(frame, event, arg):
 n = 4  # the first 4 of the counted run's environments, with their actions
 b = EpisodeBatch(env_id, n, config="startup")
 b.reset(list(range(n)))
-a = np.random.default_rng(0).uniform(-0.3, 0.3, (WARM + steps, 64, b.core.act_dim))[:, :n]
+a = np.random.default_rng(0).uniform(-0.3, 0.3, (WARM + steps, 64, b.core.settings.act_dim))[:, :n]
 for k in range(WARM):
     b.step(a[k])
 sys.settrace(tracer)

@@ -250,7 +250,7 @@ def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
         batch = EpisodeBatch(env_id, 2, config="rolling", residual=True,
                              actions={"residual_gains": [1e6, 1e8, 300.0, 1e-8]})
         batch.reset([0, 1])
-        obs = batch.step(np.zeros((2, batch.core.act_dim)))[0]
+        obs = batch.step(np.zeros((2, batch.core.settings.act_dim)))[0]
         assert np.all(np.isfinite(obs))
 
 

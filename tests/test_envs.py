@@ -114,12 +114,12 @@ def test_an_env_config_built_once_is_taken_as_it_is_by_every_constructor(monkeyp
     monkeypatch.setattr(config_module, "_read", lambda *a, **k: pytest.fail("a config file was read"))
     built = [gym.make("MillVib-Valve-v1", config=cfg).unwrapped, MillVibVecEnv("MillVib-Valve-v1", 2, config=cfg),
              ValveVectorEnv(2, config=cfg), EpisodeBatch("MillVib-Valve-v1", 2, config=cfg)]
-    assert all(env.core.cfg is cfg and env.config is cfg for env in built)
+    assert all(env.core.settings.cfg is cfg and env.config is cfg for env in built)
     assert np.array_equal(built[-1].reset([7, 8]), by_name.reset([7, 8]))
     a = np.full((2, 1), 0.3, dtype=np.float32)
     assert np.array_equal(built[-1].step(a)[0], by_name.step(a)[0])
     changed = EpisodeBatch("MillVib-Valve-v1", 1, config=cfg, reward={"w_effort": 0.5})
-    assert changed.core.cfg.reward.w_effort == 0.5 and cfg.reward.w_effort != 0.5
+    assert changed.core.settings.cfg.reward.w_effort == 0.5 and cfg.reward.w_effort != 0.5
     with pytest.raises(ValueError, match="EnvConfig of version 'v1', not 'v0'"):
         EpisodeBatch("MillVib-Valve-v0", 1, config=cfg)
     with pytest.raises(ValueError, match="runs its own config"):
@@ -612,8 +612,9 @@ def test_a_users_disturbance_runs_after_the_configs_and_leaves_their_draws_as_th
     assert len(weld) == 1 and info_welded["disturbances"][:-1] == info_plain["disturbances"]
     assert np.array_equal(a.XD[0], b.XD[0]) and a.params[0] == b.params[0]  # the config's draws, unchanged
     bump = b.DFL[0] - a.DFL[0]
-    k = int(round(weld[0][1] / b.cfg.control_dt_s))
-    assert bump[k] == pytest.approx(0.05 * b.params[0].FL) and np.count_nonzero(bump) == int(0.02 / b.cfg.control_dt_s)
+    dt = b.settings.cfg.control_dt_s
+    k = int(round(weld[0][1] / dt))
+    assert bump[k] == pytest.approx(0.05 * b.params[0].FL) and np.count_nonzero(bump) == int(0.02 / dt)
     action = plain.action_space.sample() * 0.0
     for _ in range(3):
         plain.step(action)
@@ -721,9 +722,9 @@ def test_a_base_controller_object_runs_as_its_named_gain_set_in_every_kind_of_en
     for base in (ctrl, PIDGains(*ctrl.loop_gains())):
         assert np.array_equal(valve_course(gym.make("MillVib-Valve-v1", residual=True, base_controller=base)), by_name)
     vec = MillVibVecEnv("MillVib-Valve-v1", 2, residual=True, base_controller=ctrl)
-    assert vec.core.residual_gains == PIDGains(*ctrl.loop_gains())
+    assert vec.core.settings.residual_gains == PIDGains(*ctrl.loop_gains())
     vector = ValveVectorEnv(2, env_version="v1", residual=True, base_controller=ctrl)
-    assert vector.core.residual_gains == vec.core.residual_gains
+    assert vector.core.settings.residual_gains == vec.core.settings.residual_gains
 
     seed = 20000 + 3
     env = gym.make("MillVib-GainSchedule-v1", base_controller=ctrl)
@@ -785,3 +786,23 @@ def test_an_env_config_is_immutable_and_still_pickles_and_copies():
     assert back.raw == cfg.raw and back.observation == cfg.observation and back.base_params == cfg.base_params
     with pytest.raises(TypeError, match="frozen"):
         back.raw["reward"]["w_effort"] = 1.0
+
+
+def test_the_engines_settings_are_one_frozen_object_apart_from_its_state():
+    """What a batch is (`envs.core_settings.CoreSettings`: its size, mode, config, clock, action range, envelope)
+    lives in `core.settings` alone, frozen, as gymnax keeps its EnvParams apart from its EnvState: the core holds
+    none of those names itself, and nothing changes them once the batch is made."""
+    import dataclasses
+
+    from millvib_env.envs.batch import EpisodeBatch
+    from millvib_env.envs.core_settings import CoreSettings
+
+    core = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling", residual=True).core
+    assert isinstance(core.settings, CoreSettings)
+    names = {f.name for f in dataclasses.fields(CoreSettings)}
+    assert not names & set(vars(core)), sorted(names & set(vars(core)))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        core.settings.max_steps = 1  # type: ignore[misc]
+    s = core.settings
+    assert (s.n, s.mode, s.residual) == (2, "valve", True) and s.n_samp == s.n_sub * s.spp
+    assert s.n_ctrl == s.max_steps * s.n_sub and s.trace_samples == s.max_steps * s.n_samp + 1

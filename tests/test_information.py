@@ -30,7 +30,7 @@ def _run_zero(b, seeds, steps=400):
     """The first `steps` observations of a zero-action run."""
     obs = [b.reset(seeds)]
     for _ in range(steps):
-        o, _, _ = b.step(np.zeros((b.core.n, 1), np.float32), restart=False)
+        o, _, _ = b.step(np.zeros((b.core.settings.n, 1), np.float32), restart=False)
         obs.append(o)
     return np.array(obs)
 

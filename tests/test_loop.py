@@ -157,8 +157,8 @@ def test_failing_early_never_earns_more_reward_in_v1():
         steps += 1
         if terminated[0] or truncated[0]:
             break
-    assert terminated[0] and steps < core.max_steps
-    assert total <= -DIVERGED_COST * (core.max_steps - steps)
+    assert terminated[0] and steps < core.settings.max_steps
+    assert total <= -DIVERGED_COST * (core.settings.max_steps - steps)
 
 
 def test_v1_episodes_are_reproducible_and_sensor_noise_reaches_the_controller():

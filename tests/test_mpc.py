@@ -444,12 +444,12 @@ def test_the_commands_of_a_batch_are_each_environments_own(task):
         ctrl.on_reset(venv.reset_infos, range(len(seeds)))
         pair.append((ctrl, venv))
     (batch, vb), (alone, va) = pair
-    for _ in range(vb.core.max_steps + 5):  # past the end: the restarted episodes too
+    for _ in range(vb.core.settings.max_steps + 5):  # past the end: the restarted episodes too
         u = batch.teacher_commands()
         u_alone = np.array([alone.teacher_command(i) for i in range(len(seeds))])
         np.testing.assert_allclose(u, u_alone, rtol=0.0, atol=1e-9)
         for ctrl, venv in pair:
-            _, dones, _ = venv.step((u / venv.core.u_range)[:, None].astype(np.float32))
+            _, dones, _ = venv.step((u / venv.core.settings.u_range)[:, None].astype(np.float32))
             if dones.any():
                 ctrl.on_reset(venv.reset_infos, np.flatnonzero(dones))
     assert batch.solves == alone.solves > 0

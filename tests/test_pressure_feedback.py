@@ -55,7 +55,7 @@ def test_a_named_base_is_resolved_from_the_tasks_control_config_before_the_env()
 
     env = gym.make("MillVib-GainSchedule-v0", config="rolling",  # as the zoo passes a file's env_kwargs
                    actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
-    assert list(env.unwrapped.core.gain_map.base) == named_gains("pid-pf-robust", get_task("rolling"), "v0")
+    assert list(env.unwrapped.core.settings.gain_map.base) == named_gains("pid-pf-robust", get_task("rolling"), "v0")
     kw = resolve_named_gains({"actions": {"pressure_feedback": True, "relative": {"base": "pid-pf-robust"},
                                           "residual_gains": "pid-pf-ff"}}, "rolling")
     assert kw["actions"]["relative"]["base"] == named_gains("pid-pf-robust", get_task("rolling"))  # numbers

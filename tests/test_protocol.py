@@ -221,7 +221,7 @@ def test_an_evaluation_starts_one_episode_per_plant_and_none_after_the_last(monk
     batch = EpisodeBatch("MillVib-Valve-v1", 2, config="rolling", episode_s=0.1)
     batch.reset([20000, 20001])
     zero = np.zeros((2, 1), dtype=np.float32)
-    for _ in range(batch.core.max_steps - 1):
+    for _ in range(batch.core.settings.max_steps - 1):
         batch.step(zero, restart=False)
     _, dones, _ = batch.step(zero, restart=False)
     assert dones.all()

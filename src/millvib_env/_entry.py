@@ -27,7 +27,7 @@ def _within(env: Any, max_episode_steps: Any) -> Any:
         return env
     if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, int) or max_episode_steps < 1:
         raise ValueError(f"max_episode_steps = {shown(max_episode_steps)} is invalid: a positive integer")
-    steps = env.unwrapped.core.max_steps if hasattr(env, "unwrapped") else env.core.max_steps
+    steps = env.unwrapped.core.settings.max_steps if hasattr(env, "unwrapped") else env.core.settings.max_steps
     if steps > max_episode_steps:
         config = env.unwrapped.config if hasattr(env, "unwrapped") else env.config
         raise ValueError(f"episode_s = {config.episode_s} s gives {steps} steps, past max_episode_steps = "

@@ -194,7 +194,7 @@ def _bench_env(env_id: str, kwargs: dict, n_envs: int, native_steps: int, dummy_
     dummy_rate = _time_vec(dummy, acts[:dummy_steps + 5])
     return {"env_id": env_id + (" (residual)" if kwargs.get("residual") else ""), "n_envs": n_envs,
             "native_steps_per_s": native_rate, "serial_steps_per_s": serial_rate, "dummy_steps_per_s": dummy_rate,
-            "speedup": native_rate / dummy_rate, "simulated_s_per_wall_s": native_rate * native.core.period_s}
+            "speedup": native_rate / dummy_rate, "simulated_s_per_wall_s": native_rate * native.core.settings.period_s}
 
 
 def machine_state() -> dict:

@@ -104,20 +104,21 @@ def _episode_observations(agent, steps: int) -> tuple[np.ndarray, Any]:
 
 
 def _metadata(agent, core) -> dict:
-    acts = core.cfg.actions
+    st = core.settings
+    acts = st.cfg.actions
     meta = {"millvib.agent": agent.name, "millvib.seed": str(agent.seed), "millvib.task": agent.task.name,
             "millvib.env_id": agent.env_id, "millvib.env_kwargs": json.dumps(agent.env_kwargs, sort_keys=True),
             "millvib.observation": json.dumps(list(core.obs_names)),
-            "millvib.period_s": repr(core.period_s), "millvib.mode": core.mode}
-    if core.mode == "valve":
-        meta["millvib.action"] = ("residual command (V) = action * " if core.residual else "command (V) = action * ") \
-            + repr(core.u_range) + (", added to the digital PID's command (gains KP, KI, KD, KPL, KFF: "
-                                    f"{[float(g) for g in core.residual_gains.to_array()]})"
+            "millvib.period_s": repr(st.period_s), "millvib.mode": st.mode}
+    if st.mode == "valve":
+        meta["millvib.action"] = ("residual command (V) = action * " if st.residual else "command (V) = action * ") \
+            + repr(st.u_range) + (", added to the digital PID's command (gains KP, KI, KD, KPL, KFF: "
+                                    f"{[float(g) for g in st.residual_gains.to_array()]})"
                                     + (" and the fixed feedforward of env_kwargs' actions.residual_feedforward"
                                        if core.feedforward is not None else "")
-                                    + ", and limited with it to the amplifier's range" if core.residual else "")
+                                    + ", and limited with it to the amplifier's range" if st.residual else "")
     else:
-        meta["millvib.action"] = f"gain schedule in [-1, 1]^{core.act_dim} (envs.actions.GainMap of the env config: " \
+        meta["millvib.action"] = f"gain schedule in [-1, 1]^{st.act_dim} (envs.actions.GainMap of the env config: " \
             f"{json.dumps({k: acts.bounds(k) for k in ('kp', 'ki', 'kd', 'kpl', 'kff')})})"
     return meta
 
@@ -185,6 +186,6 @@ def export_agent(name: str, out: str | Path, *, seed: int | None = None, check_s
             times[i] = time.perf_counter() - start
         summary["latency_us"] = {"median": round(float(np.median(times)) * 1e6, 1),
                                  "p99": round(float(np.percentile(times, 99)) * 1e6, 1),
-                                 "loop_period_us": round(core.period_s * 1e6, 1),
+                                 "loop_period_us": round(core.settings.period_s * 1e6, 1),
                                  "note": "onnxruntime, one thread, batch 1, this machine under its present load"}
     return summary

@@ -278,10 +278,10 @@ class MPCPolicy(Controller):
         """The environments' core (`envs.core.MillVibCore`) whose plants this oracle reads. As a controller it
         drives the valve alone; `as_teacher` attaches it to any valve environment of the sampled loop (a
         residual one too) to give `teacher_commands` for whatever drives it (`training.distill`)."""
-        if core.loop is None or core.mode != "valve" or (core.residual and not as_teacher):
+        if core.settings.loop is None or core.settings.mode != "valve" or (core.settings.residual and not as_teacher):
             raise ValueError(f"{self.name} commands the valve of the sampled loop: run it in {self.env_id}")
         self.core = core
-        n = core.n
+        n = core.settings.n
         self._models = [None] * n
         self._keys = [None] * n
         self._stack = {}  # every environment's model, stacked (`_place`), made at the first model
@@ -317,7 +317,9 @@ class MPCPolicy(Controller):
             return model
         import daqp
 
-        m = mpc_model(base.replace(c1=now["c1"], Ct=now["Ct"]), self.settings, core.loop.dt_s, xd)
+        loop = core.settings.loop
+        assert loop is not None  # attach checks it
+        m = mpc_model(base.replace(c1=now["c1"], Ct=now["Ct"]), self.settings, loop.dt_s, xd)
         N = m.H.shape[0]
         # solved in commands of U_SCALE_V and a cost of O(1): the weights' 1e10 spread stays out of the solver
         m.q_scale = U_SCALE_V / float(np.max(np.diag(m.H)) * U_SCALE_V ** 2)
@@ -337,7 +339,7 @@ class MPCPolicy(Controller):
         st = self._stack
         N, ns = m.H.shape[0], len(m.keep) + 1
         if not st:
-            n = self._core.n
+            n = self._core.settings.n
             st.update(keep=list(m.keep), Ad=np.zeros((n, ns, ns)), Bd=np.zeros((n, ns)), Ed=np.zeros((n, ns, 3)),
                       G_s=np.zeros((n, N, ns)), G_e=np.zeros((n, N, 3 * N)), G_u=np.zeros((n, N)),
                       G_w=np.zeros((n, N, ns)), y0=np.zeros((n, ns - 1)), u0=np.zeros(n), xd0=np.zeros(n),
@@ -356,8 +358,8 @@ class MPCPolicy(Controller):
         (len(idx), N + 1, 3). Without a preview, or for a course not in `settings.ahead`, the value now is held."""
 
         core = self._core
-        assert core.loop is not None  # attach checks it
-        dt = core.loop.dt_s
+        assert core.settings.loop is not None  # attach checks it
+        dt = core.settings.loop.dt_s
         k = core.control_sample(idx)
         t = core.time_now(idx)
         last = core.course_samples - 1
@@ -401,13 +403,13 @@ class MPCPolicy(Controller):
         (to the bit in the four tasks' benchmarks, measured; tests/test_mpc.py compares them)."""
 
         core = self._core
-        assert core.loop is not None  # attach checks it
-        idx = np.arange(core.n) if idx is None else np.asarray(idx, dtype=np.intp)
+        assert core.settings.loop is not None  # attach checks it
+        idx = np.arange(core.settings.n) if idx is None else np.asarray(idx, dtype=np.intp)
         last = core.course_samples - 1
         xd_now = core.setpoint_course(idx, np.minimum(core.control_sample(idx), last))
         models = [self._model(int(i), float(x)) for i, x in zip(idx, xd_now)]
         st = self._stack
-        whole = len(idx) == core.n and bool(np.all(idx == np.arange(core.n)))
+        whole = len(idx) == core.settings.n and bool(np.all(idx == np.arange(core.settings.n)))
         sel = slice(None) if whole else idx
 
         def mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:  # each slot's matrix times its vector
@@ -436,7 +438,7 @@ class MPCPolicy(Controller):
             has_w = has_w | upd
             st["w"][idx], st["has_w"][idx] = w, has_w
         w = np.where(has_w[:, None], w, 0.0)
-        delayed = core.loop.delay_samples > 0
+        delayed = core.settings.loop.delay_samples > 0
         if delayed:  # the command held over [t_k, t_(k+1)] was computed a sample ago
             held = core.controller_state(idx, K_UPEND)
             s = mv(Ad, s) + Bd * (held - u0)[:, None] + mv(Ed, e[:, 0]) + w
@@ -457,7 +459,7 @@ class MPCPolicy(Controller):
         umax = st["umax"][sel]
         u = np.minimum(np.maximum(u0 + du, -umax), umax)
         # the integral of the position error, as the model counts it (true position, no noise)
-        self._xi[idx] += core.loop.dt_s * (xd_now - y_now[:, IX])
+        self._xi[idx] += core.settings.loop.dt_s * (xd_now - y_now[:, IX])
         # the model's prediction of the next sample's plant state, absolute (a rebuilt model keeps it)
         nxt = s if delayed else mv(Ad, s) + Bd * (u - u0)[:, None] + mv(Ed, e[:, 0]) + w
         st["pred"][idx] = nxt[:, :-1] + y0
@@ -472,6 +474,6 @@ class MPCPolicy(Controller):
         core = self._core
         obs = np.asarray(observation)
         n = 1 if obs.ndim == 1 else obs.shape[0]
-        u = self.teacher_commands(None if n == core.n else np.arange(n))
-        action = (u / core.u_range).astype(np.float32)[:, None]
+        u = self.teacher_commands(None if n == core.settings.n else np.arange(n))
+        action = (u / core.settings.u_range).astype(np.float32)[:, None]
         return (action[0] if obs.ndim == 1 else action), state

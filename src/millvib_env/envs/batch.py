@@ -77,7 +77,7 @@ class EpisodeBatch:
                                observe_params=observe_params, observe_phase=observe_phase,
                                extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
                                overrides=overrides)
-        self.config = self.core.cfg
+        self.config = self.core.settings.cfg
         self.n = n
         self.reset_infos: list[dict] = [{} for _ in range(n)]
 

@@ -22,9 +22,9 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from millvib_env import _interrupt
-from millvib_env._checks import as_float, shown
-from millvib_env.envs.actions import GainMap
+from millvib_env._checks import shown
 from millvib_env.envs.config import EnvConfig
+from millvib_env.envs.core_settings import MAX_BATCH_BYTES, core_settings
 from millvib_env.envs.disturbances import EpisodeProfile, user_disturbances
 from millvib_env.envs.envelope import EnvelopeTerms, left_flags, user_envelope
 from millvib_env.envs.episode import check_reset_options, draw_episode
@@ -39,7 +39,6 @@ from millvib_env.loop import kernel as loop_kernel
 from millvib_env.loop.kernel import K_FM, K_PM, K_UCTRL, K_VF, K_XM, NCS, peek_samples
 from millvib_env.params import PAPER_GAINS, MillParams, PIDGains
 from millvib_env.plant import kernel
-from millvib_env.plant.integrate import DEFAULT_RTOL_FAST, MAX_STEPS_PER_SECOND
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import (A_ACC, A_PS, A_U, C_EA, C_EP, C_EW, C_KD, C_KFF, C_KI, C_KP, C_KPL, C_PID, C_UEXT,
                                      IPL, IUI, IV, IX, NAUX, NC, NPACK, NY, P_FL, P_PF, P_PS, P_UMAX, drive_vector,
@@ -56,8 +55,6 @@ RENDER_WINDOW_S = 0.1
 #: the start of an episode reported apart from the rest (s): the transient of a 1 mm start or of a
 #: plant change's onset lives there; episodes shorter than twice this have no split
 TRANSIENT_S = 0.1
-#: a batch whose arrays would exceed this is refused before allocation (ValueError)
-MAX_BATCH_BYTES = 4 * 2**30
 
 
 class MillVibCore(EpisodeReads):
@@ -66,95 +63,41 @@ class MillVibCore(EpisodeReads):
     def __init__(self, n: int, mode: str, config: EnvConfig, *, residual: bool = False,
                  observe_params: bool | None = None, observe_phase: bool | None = None,
                  extra_disturbances: Sequence | None = None, reward_fn: Any = None, envelope_fn: Any = None):
-        if mode not in ("gain", "valve"):
-            raise ValueError(f"mode = {shown(mode)} is invalid: 'gain' or 'valve'")
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n_envs = {shown(n)} is invalid: an integer >= 1")
-        for name, flag in (("residual", residual), ("observe_params", observe_params),
-                           ("observe_phase", observe_phase)):
-            if flag is not None and not isinstance(flag, (bool, np.bool_)):
-                raise ValueError(f"{name} = {shown(flag)} is invalid: must be True or False")
-        self.n, self.mode, self.cfg, self.residual = int(n), mode, config, bool(residual and mode == "valve")
-        seen = config.observation
-        observe_params = seen.params if observe_params is None else observe_params
-        observe_phase = seen.phase if observe_phase is None else observe_phase
-        self.observe_force = seen.force
-        n_trace = self._set_timing(config, mode)
+        #: what the batch is, fixed (`envs.core_settings`: gymnax's EnvParams); the rest of the core is its state
+        self.settings = s = core_settings(n, mode, config, residual=residual, observe_params=observe_params,
+                                          observe_phase=observe_phase)
         dist = config.disturbances
         self.disturbances, noise, delay = list(dist.profile), dist.sensor_noise, dist.delay_steps
         self.n_builtin = len(self.disturbances)  # then a user's own (`envs.disturbances.Disturbance`), in order
         self.disturbances += user_disturbances(extra_disturbances)
-
-        self._set_actions(config, mode, observe_params, observe_phase, noise, delay, reward_fn, envelope_fn)
-        self._allocate_state(n_trace)
-
-    def _set_timing(self, config: EnvConfig, mode: str) -> int:
-        """The episode's clock: the agent's period, its control samples and plant samples, the episode's length;
-        a batch whose records would not fit in memory is refused. Returns the samples of an episode's trace."""
-        seen = config.observation
-        self.period_s = config.agent_period_s(mode)
-        #: the sampled loop (v1: a digital controller at the control rate, sensors in the loop), or None for
-        #: the paper's analog loop inside the plant (v0)
-        self.loop = config.loop
-        #: the loop's readings the observation carries: the sample the controller took at the period's start
-        #: ("previous", v1's default: one sample older than the one the agent's action joins) or the one it
-        #: takes at the period's end, with the agent's action ("current")
-        self.fresh = self.loop is not None and seen.loop_sample == "current"
-        self.n_sub = int(round(self.period_s / config.control_dt_s))
-        self.spp = int(round(config.control_dt_s * config.sample_rate_hz))
-        self.n_samp = self.n_sub * self.spp
-        self.dt_sample = 1.0 / config.sample_rate_hz
-        self.max_steps = config.episode_steps(mode)
-        self.n_ctrl = self.max_steps * self.n_sub
-        n_trace = self.max_steps * self.n_samp + 1
-        need = 8 * self.n * (n_trace + 2 * self.n_ctrl + 2 * (self.n_samp + 1) * (NY + NAUX))
-        if need > MAX_BATCH_BYTES:
-            raise ValueError(f"n_envs = {shown(self.n)} with episode_s = {config.episode_s} s would need "
-                             f"{as_float(need) / 2**30:.1f} GiB of episode records; allowed up to "
-                             f"{MAX_BATCH_BYTES / 2**30:.0f} GiB: use fewer environments or shorter episodes")
-        return n_trace
-
-    def _set_actions(self, config: EnvConfig, mode: str, observe_params: bool, observe_phase: bool, noise, delay,
-                     reward_fn: Any, envelope_fn: Any) -> None:
-        """The action (gains or valve command, its range, the fixed feedforward under a residual), the observation,
-        the reward and the envelope."""
-        seen = config.observation
-        acts = config.actions
-        self.gain_map = GainMap.from_config(config)
-        self.u_range = float(acts.residual_range_v if self.residual else acts.u_range_v)
-        self.residual_gains = PIDGains(*acts.residual_gains)
-        self.act_dim = self.gain_map.dim if mode == "gain" else 1
-        self.action_space = spaces.Box(-1.0, 1.0, (self.act_dim,), dtype=np.float32)
-        self.observer = Observer(mode, residual=self.residual, gain_names=self.gain_map.names,
-                                 observe_phase=observe_phase, observe_params=observe_params,
-                                 observe_force=self.observe_force, noise=noise, delay=delay, n=self.n,
-                                 preview_samples=seen.preview_samples, history_samples=seen.history_samples,
-                                 history_filters=seen.history_filters)
-        self.observe_params, self.observe_phase = observe_params, observe_phase
+        self.action_space = spaces.Box(-1.0, 1.0, (s.act_dim,), dtype=np.float32)
+        self.observer = Observer(mode, residual=s.residual, gain_names=s.gain_map.names,
+                                 observe_phase=s.observe_phase, observe_params=s.observe_params,
+                                 observe_force=s.observe_force, noise=noise, delay=delay, n=s.n,
+                                 preview_samples=config.observation.preview_samples,
+                                 history_samples=config.observation.history_samples,
+                                 history_filters=config.observation.history_filters)
         self.obs_names = self.observer.names
         #: the fixed feedforward under a residual action (`envs.feedforward`), read from the observation the agent
         #: acted on; None without one
         self.feedforward = None
-        if acts.residual_feedforward:
-            if not self.residual:
+        if config.actions.residual_feedforward:
+            if not s.residual:
                 raise ValueError("actions.residual_feedforward is given, but the environment is not a residual valve "
                                  "environment: a feedforward runs under the residual valve action only "
                                  "(MillVib-Valve with residual=True)")
-            self.feedforward = ChannelFeedforward.from_mapping(acts.residual_feedforward, self.obs_names)
-        self.ff_limit = float(acts.u_range_v)
+            self.feedforward = ChannelFeedforward.from_mapping(config.actions.residual_feedforward, self.obs_names)
         self.observation_space = spaces.Box(-1.0, 1.0, (len(self.obs_names),), dtype=np.float32)
-        self.reward = Reward(config.reward, period_s=self.period_s, sample_rate_hz=config.sample_rate_hz, n=self.n,
+        self.reward = Reward(config.reward, period_s=s.period_s, sample_rate_hz=config.sample_rate_hz, n=s.n,
                              user=reward_fn)
-        env = config.envelope
-        self.x_max, self.p_min, self.p_max_factor = env.x_max_m, env.p_min_pa, env.p_max_factor
         self.envelope_fn = user_envelope(envelope_fn)
+        self._allocate_state()
 
-
-    def _allocate_state(self, n_trace: int) -> None:
+    def _allocate_state(self) -> None:
         """Every environment's state, zeroed: its generator and plant, the plant's and the loop's states, the
         episode's courses and records. A reset fills them."""
-        config, seen = self.cfg, self.cfg.observation
-        n = self.n
+        st = self.settings
+        config, n = st.cfg, st.n
         self.np_random: list[np.random.Generator] = [seeding.np_random(None)[0] for _ in range(n)]
         self.params: list[MillParams] = [config.base_params] * n
         self._plant_info: list[dict] = [{}] * n
@@ -168,28 +111,27 @@ class MillVibCore(EpisodeReads):
         self.H = np.full(n, kernel.H_INIT)
         self.T = np.zeros(n)
         self.ATOL = np.zeros((n, NY))
-        self.XD = np.zeros((n, self.n_ctrl + self.n_sub))
-        self.DFL = np.zeros((n, self.n_ctrl + self.n_sub))
-        #: the measured preview (`envs.gauge`): its settings, and the force course each episode's gauge predicts
-        self.gauge = seen.preview_gauge if seen.preview_samples else None
-        self.GF = np.zeros((n, self.n_ctrl + self.n_sub)) if self.gauge is not None else None
+        self.XD = np.zeros((n, st.n_ctrl + st.n_sub))
+        self.DFL = np.zeros((n, st.n_ctrl + st.n_sub))
+        #: the force course each episode's measured preview predicts (`envs.gauge`)
+        self.GF = np.zeros((n, st.n_ctrl + st.n_sub)) if st.gauge is not None else None
         self.k = np.zeros(n, dtype=np.int64)
         self.sq_err_sum = np.zeros(n)
-        self.acc_trace = np.zeros((n, n_trace))  # + the sample at t = 0
+        self.acc_trace = np.zeros((n, st.trace_samples))  # + the sample at t = 0
         self.n_trace = np.zeros(n, dtype=np.int64)
-        self.last_action = np.zeros((n, self.act_dim))
+        self.last_action = np.zeros((n, st.act_dim))
         self.seen = np.zeros((n, len(self.obs_names)), np.float32)  # the observation the agent acts on
         self.u_ff = np.zeros(n)  # the feedforward's command (V) of the period under way
-        self.gains = np.zeros((n, self.gain_map.dim))
+        self.gains = np.zeros((n, st.gain_map.dim))
         self.ep_return = np.zeros(n)
-        self.YS = np.zeros((n, self.n_samp + 1, NY))
-        self.AUXS = np.zeros((n, self.n_samp + 1, NAUX))
+        self.YS = np.zeros((n, st.n_samp + 1, NY))
+        self.AUXS = np.zeros((n, st.n_samp + 1, NAUX))
         self.status = np.zeros(n, dtype=np.int64)
         self.n_valid = np.zeros(n, dtype=np.int64)
-        if self.loop is not None:
+        if st.loop is not None:
             self.CS = np.zeros((n, NCS))  # the digital controllers' states (`loop.kernel.CS_NAMES`)
-            self.LS = self.loop.vector()
-            self.NOISE = np.zeros((n, self.n_ctrl + self.n_sub, 3))  # the sensors' standard normals
+            self.LS = st.loop.vector()
+            self.NOISE = np.zeros((n, st.n_ctrl + st.n_sub, 3))  # the sensors' standard normals
         #: the episode's actuator record: max |u| (V), samples at the limit, samples, max |xv| (m), max |QL|
         #: (m^3/s), min and max pL (Pa)
         self.actuator = np.zeros((n, 7))
@@ -197,8 +139,6 @@ class MillVibCore(EpisodeReads):
         #: the period's summary (`envs.period.summarize_period`): vibration and error mean squares, max |x|,
         #: min and max pL, per environment
         self._period = tuple(np.zeros(n) for _ in range(5))
-        self.rtol = DEFAULT_RTOL_FAST
-        self.max_kernel_steps = int(MAX_STEPS_PER_SECOND * self.period_s) + 1000
         #: when True, every step's info carries the period's measured signals ("signals"), as a mill's
         #: data acquisition records them (position, velocity, acceleration, pressures, valve command)
         self.record_signals = False
@@ -208,18 +148,18 @@ class MillVibCore(EpisodeReads):
         self.history: list[dict] = [{}]
         # index arrays every step uses (the environments and a period's control samples), and all-active flags
         self._rows = np.arange(n)[:, None]
-        self._sub = np.arange(self.n_sub)
+        self._sub = np.arange(st.n_sub)
         self._all = np.arange(n)
         self._active = np.ones(n, dtype=np.bool_)
 
     # ------------------------------------------------------------------------------------------
     def gains_from_action(self, action: np.ndarray) -> np.ndarray:
         """Map gain-schedule actions in [-1, 1]^k to gains (KP, KI, KD[, KPL]) (`GainMap`)."""
-        return self.gain_map.gains(action)
+        return self.settings.gain_map.gains(action)
 
     def action_from_gains(self, gains: np.ndarray) -> np.ndarray:
         """Inverse of `gains_from_action` (gains outside the bounds are clipped)."""
-        return self.gain_map.action(gains)
+        return self.settings.gain_map.action(gains)
 
     def current_params(self, i: int) -> dict:
         """The plant of environment i now: c1 and Ct move during a plant change."""
@@ -239,13 +179,14 @@ class MillVibCore(EpisodeReads):
 
     def reset_env(self, i: int, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start a new episode in environment i (a new plant, disturbances, initial state)."""
-        options = check_reset_options(options, self.cfg)
+        st = self.settings
+        options = check_reset_options(options, st.cfg)
         if seed is not None:
             self.seed_env(i, seed)
         episode_seed = int(self.np_random[i].integers(2**63 - 1))
-        ep = draw_episode(self.cfg, self.disturbances, episode_seed, self.n_ctrl, options, self.n_builtin)
+        ep = draw_episode(st.cfg, self.disturbances, episode_seed, st.n_ctrl, options, self.n_builtin)
         params, profile = ep.params, ep.profile
-        self.observer.start_noise(i, ep.noise_rng, self.max_steps + 1)  # an observation at reset and per step
+        self.observer.start_noise(i, ep.noise_rng, st.max_steps + 1)  # an observation at reset and per step
         self.params[i] = params
         # info["params"]: the episode's plant (c1 and Ct replaced while it changes: `current_params`)
         self._plant_info[i] = {"c1": params.c1, "Ct": params.Ct, "beta_e": params.beta_e, "mt": params.mt,
@@ -253,31 +194,31 @@ class MillVibCore(EpisodeReads):
         self.profiles[i] = profile
         self.scenario[i] = ep.scenario
         self.P[i] = pack(params)
-        self.ATOL[i] = self.rtol * state_scale(params)
+        self.ATOL[i] = st.rtol * state_scale(params)
         self.Y[i] = ep.y0
         self.H[i] = kernel.H_INIT
         self.T[i] = 0.0
-        self.XD[i, :self.n_ctrl] = profile.xd
-        self.XD[i, self.n_ctrl:] = profile.xd[-1]
-        self.DFL[i, :self.n_ctrl] = profile.dFL
-        self.DFL[i, self.n_ctrl:] = profile.dFL[-1]
-        if self.GF is not None and self.gauge is not None:
-            gf = gauge_force(profile.dFL, np.random.default_rng(ep.gauge_seed), self.cfg.control_dt_s, self.gauge)
-            self.GF[i, :self.n_ctrl] = gf
-            self.GF[i, self.n_ctrl:] = gf[-1]
-        if self.mode == "gain":
+        self.XD[i, :st.n_ctrl] = profile.xd
+        self.XD[i, st.n_ctrl:] = profile.xd[-1]
+        self.DFL[i, :st.n_ctrl] = profile.dFL
+        self.DFL[i, st.n_ctrl:] = profile.dFL[-1]
+        if self.GF is not None and st.gauge is not None:
+            gf = gauge_force(profile.dFL, np.random.default_rng(ep.gauge_seed), st.cfg.control_dt_s, st.gauge)
+            self.GF[i, :st.n_ctrl] = gf
+            self.GF[i, st.n_ctrl:] = gf[-1]
+        if st.mode == "gain":
             # the paper's PID (KPL, KFF at their lowest bounds), or the base gains of a relative action
-            self.gains[i] = self.gain_map.start_gains(PAPER_GAINS.to_array())
-            start = PIDGains(**dict(zip(self.gain_map.names, (float(g) for g in self.gains[i]))))
+            self.gains[i] = st.gain_map.start_gains(PAPER_GAINS.to_array())
+            start = PIDGains(**dict(zip(st.gain_map.names, (float(g) for g in self.gains[i]))))
         else:
-            start = self.residual_gains
-            self.gains[i] = np.resize(start.to_array(), self.gains.shape[1]) if self.residual else 0.0
+            start = st.residual_gains
+            self.gains[i] = np.resize(start.to_array(), self.gains.shape[1]) if st.residual else 0.0
         pl_ref = settled_state(params, xd=float(profile.xd[0]))[IPL]  # steady operation's load pressure
-        c = drive_vector(start, pid_on=self.mode == "gain" or self.residual, pl_ref=pl_ref, change=profile.change)
+        c = drive_vector(start, pid_on=st.mode == "gain" or st.residual, pl_ref=pl_ref, change=profile.change)
         c[C_EA], c[C_EW], c[C_EP] = profile.ecc_amp_n, profile.ecc_omega, profile.ecc_phase
         self.C[i] = c
         plant_c = self.C[i]
-        if self.loop is not None:  # the digital controller takes over the integral term and the hold
+        if st.loop is not None:  # the digital controller takes over the integral term and the hold
             u0 = float(self.Y[i, IUI]) if c[C_PID] else 0.0
             self.Y[i, IUI] = 0.0
             self.CS[i] = loop_kernel.start_state(self.Y[i], float(profile.dFL[0]) + float(self._eccentricity(i, 0.0)),
@@ -297,7 +238,7 @@ class MillVibCore(EpisodeReads):
         if i == 0:
             self.history[0] = {"t": [0.0], "x": [np.array([ep.x0])], "v": [np.zeros(1)],
                                "gains": [self.gains[0].copy()], "u": [0.0]}
-        if self.fresh:  # the first sample's readings, which the controller takes at t = 0 with the first action
+        if st.fresh:  # the first sample's readings, which the controller takes at t = 0 with the first action
             obs = self._observe_sample(np.array([i]), a=np.zeros(1))
         else:
             obs = self._observe(np.array([i]), e=np.array([profile.xd[0] - ep.x0]), v=np.zeros(1), a=np.zeros(1),
@@ -310,30 +251,32 @@ class MillVibCore(EpisodeReads):
 
     # ------------------------------------------------------------------------------------------
     def check_actions(self, actions: Any) -> np.ndarray:
+        st = self.settings
         try:
             a = np.asarray(actions, dtype=np.float64)
         except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond a float
-            raise ValueError(f"action = {shown(actions)} is invalid: numbers in [-1, 1] of shape ({self.act_dim},)") \
+            raise ValueError(f"action = {shown(actions)} is invalid: numbers in [-1, 1] of shape ({st.act_dim},)") \
                 from None
-        if a.shape == (self.act_dim,) and self.n == 1:
+        if a.shape == (st.act_dim,) and st.n == 1:
             a = a[None, :]
-        if a.shape != (self.n, self.act_dim):
-            raise ValueError(f"action has shape {np.shape(actions)}; expected ({self.n}, {self.act_dim})"
-                             + (f" or ({self.act_dim},)" if self.n == 1 else ""))
+        if a.shape != (st.n, st.act_dim):
+            raise ValueError(f"action has shape {np.shape(actions)}; expected ({st.n}, {st.act_dim})"
+                             + (f" or ({st.act_dim},)" if st.n == 1 else ""))
         if not np.isfinite(a).all():
             raise ValueError(f"action contains NaN or inf: {a.tolist()}; allowed range is [-1, 1]")
         return np.minimum(np.maximum(a, -1.0), 1.0)  # finite actions outside the Box are clipped, as Box actions are
 
     def step(self, actions: Any):
         """Advance every environment by one agent period. Returns obs, reward, terminated, truncated, infos."""
+        st = self.settings
         _interrupt.check()  # a Ctrl-C a library swallowed (numba's compiler, a solver) ends the run here
         if not self.started.all():
             raise ValueError("step() before reset(): call reset() to start an episode first")
         a = self.check_actions(actions)
-        n = self.n
-        if self.mode == "gain":
-            self.gains = self.gain_map.gains(a)
-            for j, name in enumerate(self.gain_map.names):
+        n = st.n
+        if st.mode == "gain":
+            self.gains = st.gain_map.gains(a)
+            for j, name in enumerate(st.gain_map.names):
                 self.C[:, GAIN_COLUMNS[name]] = self.gains[:, j]
             effort = np.mean(np.abs(a - self.last_action), axis=1)
         else:
@@ -341,51 +284,51 @@ class MillVibCore(EpisodeReads):
             effort = a[:, 0] ** 2
         self.last_action = a
 
-        cols = self.k[:, None] * self.n_sub + self._sub
+        cols = self.k[:, None] * st.n_sub + self._sub
         rows = self._rows
         xd_step, dfl_step = self.XD[rows, cols], self.DFL[rows, cols]
         active = self._active
         p_max = 10.0 * float(self.P[:, P_PS].max())  # numerical guard only; the envelope below is physical
-        if self.loop is None:
+        if st.loop is None:
             kernel.advance_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step, active,
-                                 self.cfg.control_dt_s, self.spp, self.rtol, self.ATOL, p_max, self.max_kernel_steps,
+                                 st.cfg.control_dt_s, st.spp, st.rtol, self.ATOL, p_max, st.max_kernel_steps,
                                  self.YS, self.AUXS, self.status, self.n_valid, self.n_steps)
         else:
             loop_kernel.advance_loop_batch(self.P, self.C, self.Y, self.F, self.H, self.T, xd_step, dfl_step,
-                                           self.NOISE, self.k * self.n_sub, self.CS, self.LS, active, self.spp,
-                                           self.rtol, self.ATOL, p_max, self.max_kernel_steps, self.YS, self.AUXS,
+                                           self.NOISE, self.k * st.n_sub, self.CS, self.LS, active, st.spp,
+                                           st.rtol, self.ATOL, p_max, st.max_kernel_steps, self.YS, self.AUXS,
                                            self.status, self.n_valid, self.n_steps)
 
         failed = self.status != 0
         if failed.any():
             self._hold_last_good(failed)
         vib_ms, err_ms, x_abs, pl_lo, pl_hi = self._period
-        summarize_period(self.YS, self.AUXS, xd_step, self.spp, self.reward.sos, self.reward.zi, self.acc_trace,
+        summarize_period(self.YS, self.AUXS, xd_step, st.spp, self.reward.sos, self.reward.zi, self.acc_trace,
                          self.n_trace, vib_ms, err_ms, x_abs, pl_lo, pl_hi)
         self._record_actuator(pl_lo, pl_hi)
         last = self.YS[:, -1, :]
         ps = self.P[:, P_PS]
-        terminated = failed | (x_abs > self.x_max) | (pl_lo < self.p_min) | (pl_hi > self.p_max_factor * ps)
+        terminated = failed | (x_abs > st.x_max) | (pl_lo < st.p_min) | (pl_hi > st.p_max_factor * ps)
         if self.envelope_fn is not None:  # a user's own constraints, on top of the config's envelope
             terminated = terminated | self._users_envelope(x_abs, pl_lo, pl_hi, last, terminated)
-        offset = np.mean(a ** 2, axis=1) if self.mode == "gain" and (self.reward.w_off or self.reward.user) else None
-        reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset, remaining=self.max_steps - self.k - 1)
-        self.sq_err_sum += err_ms * self.n_samp
+        offset = np.mean(a ** 2, axis=1) if st.mode == "gain" and (self.reward.w_off or self.reward.user) else None
+        reward = self.reward.step(vib_ms, err_ms, effort, terminated, offset, remaining=st.max_steps - self.k - 1)
+        self.sq_err_sum += err_ms * st.n_samp
         self.k += 1
-        truncated = (self.k >= self.max_steps) & ~terminated
+        truncated = (self.k >= st.max_steps) & ~terminated
         self.ep_return += reward
 
-        if self.loop is None:
+        if st.loop is None:
             u_last = self.AUXS[:, -1, A_U]
-            u_pid = u_last - self.C[:, C_UEXT] if self.residual else np.zeros(n)
+            u_pid = u_last - self.C[:, C_UEXT] if st.residual else np.zeros(n)
             obs = self._observe(self._all, e=xd_step[:, -1] - last[:, IX], v=last[:, IV],
                                 a=self.AUXS[:, -1, A_ACC], pL=last[:, IPL], u_pid=u_pid)
-        elif self.fresh:
+        elif st.fresh:
             obs = self._observe_sample(self._all, a=self.AUXS[:, -1, A_ACC])
         else:  # what the controller read at its last sample: the same sensors
             cs = self.CS
             obs = self._observe(self._all, e=xd_step[:, -1] - cs[:, K_XM], v=cs[:, K_VF], a=self.AUXS[:, -1, A_ACC],
-                                pL=cs[:, K_PM], u_pid=cs[:, K_UCTRL] if self.residual else np.zeros(n))
+                                pL=cs[:, K_PM], u_pid=cs[:, K_UCTRL] if st.residual else np.zeros(n))
         out_obs = self.observer.push(obs)
         self.seen[:] = out_obs
 
@@ -394,7 +337,7 @@ class MillVibCore(EpisodeReads):
         infos: list[dict] = [{"params": self.current_params(i)} for i in range(n)]
         if self.record_signals:
             for i in range(n):
-                infos[i]["signals"] = self._signals(i, np.repeat(xd_step[i], self.spp))
+                infos[i]["signals"] = self._signals(i, np.repeat(xd_step[i], st.spp))
         for i, m in metrics.items():
             infos[i].update(m)
         self._record_history()
@@ -403,17 +346,18 @@ class MillVibCore(EpisodeReads):
     def _valve_command(self, a: np.ndarray) -> np.ndarray:
         """The valve action's volts, and the fixed feedforward under a residual (`envs.feedforward`), computed from
         the observation the action was taken on and held within the valve action's full scale, as a valve action is."""
+        st = self.settings
         if self.feedforward is None:
-            return a[:, 0] * self.u_range
+            return a[:, 0] * st.u_range
         ff = self.feedforward.command_v(self.seen)
-        self.u_ff = np.minimum(np.maximum(ff, -self.ff_limit), self.ff_limit)
-        return a[:, 0] * self.u_range + self.u_ff
+        self.u_ff = np.minimum(np.maximum(ff, -st.ff_limit), st.ff_limit)
+        return a[:, 0] * st.u_range + self.u_ff
 
     def _hold_last_good(self, failed: np.ndarray) -> None:
         """In the environments whose period failed, hold the last good sample over the samples not written, so
         nothing non-finite reaches the filters (and the plant state, if it went non-finite)."""
         samples, aux = self.YS[:, 1:, :], self.AUXS[:, 1:, :]
-        valid = np.arange(1, self.n_samp + 1)[None, :] < self.n_valid[:, None]
+        valid = np.arange(1, self.settings.n_samp + 1)[None, :] < self.n_valid[:, None]
         last = np.maximum(self.n_valid - 1, 0)
         for b in np.flatnonzero(failed):
             good_y = self.YS[b, last[b]] if np.all(np.isfinite(self.YS[b, last[b]])) else self.YS[b, 0]
@@ -428,10 +372,11 @@ class MillVibCore(EpisodeReads):
         velocity, acceleration, chamber and supply pressure, valve command, set-point, and the
         rolling force FL(t) from the load cells (nominal + steps + eccentricity). The PID's integral
         term and the bristle state are not measurements and are not included."""
+        st = self.settings
 
-        t = self.T[i] - self.period_s + self.dt_sample * np.arange(1, self.n_samp + 1)
-        k0 = (self.k[i] - 1) * self.n_sub
-        load = self.P[i, P_FL] + np.repeat(self.DFL[i, k0:k0 + self.n_sub], self.spp)
+        t = self.T[i] - st.period_s + st.dt_sample * np.arange(1, st.n_samp + 1)
+        k0 = (self.k[i] - 1) * st.n_sub
+        load = self.P[i, P_FL] + np.repeat(self.DFL[i, k0:k0 + st.n_sub], st.spp)
         if self.C[i, C_EA] != 0.0:
             load = load + self._eccentricity(i, t)
         return {"t": t, "x": self.YS[i, 1:, IX].copy(), "v": self.YS[i, 1:, IV].copy(),
@@ -444,7 +389,7 @@ class MillVibCore(EpisodeReads):
         them (`loop.kernel.peek_samples`: the same numbers, with that sample's set-point, force step and noise):
         rows (x_m, v_f, p_m, F_m, the PID's command in V), one per environment (v1 only)."""
         idx = np.asarray(idx, np.int64)
-        col = self.k[idx] * self.n_sub
+        col = self.k[idx] * self.settings.n_sub
         got = np.empty((len(idx), 5))
         peek_samples(idx, self.T, self.Y, self.C, self.CS, self.LS, self.XD[idx, col], self.DFL[idx, col],
                      self.NOISE, col, got)
@@ -452,24 +397,26 @@ class MillVibCore(EpisodeReads):
 
     def _observe_sample(self, idx: np.ndarray, *, a) -> np.ndarray:
         """Observations of environments `idx` from the readings the controller takes at its next sample."""
+        st = self.settings
         xm, vf, pm, fm, u_ctrl = self.next_sample(idx).T
-        xd = self.XD[idx, self.k[idx] * self.n_sub]
-        return self._observe(idx, e=xd - xm, v=vf, a=a, pL=pm, u_pid=u_ctrl if self.residual else np.zeros(len(idx)),
+        xd = self.XD[idx, self.k[idx] * st.n_sub]
+        return self._observe(idx, e=xd - xm, v=vf, a=a, pL=pm, u_pid=u_ctrl if st.residual else np.zeros(len(idx)),
                              force=fm)
 
     def _observe(self, idx: np.ndarray, *, e, v, a, pL, u_pid, force=None) -> np.ndarray:
-        if self.mode == "gain":
-            control = self.gain_map.action(self.gains[idx])
+        st = self.settings
+        if st.mode == "gain":
+            control = st.gain_map.action(self.gains[idx])
         else:
             control = self.last_action[idx, 0]
-        params = [(self.params[i].c1, self.params[i].Ct) for i in idx] if self.observe_params else None
+        params = [(self.params[i].c1, self.params[i].Ct) for i in idx] if st.observe_params else None
         if params is not None and any(self.profiles[i] is not None and self.profiles[i].change for i in idx):
             params = [tuple(self.current_params(i)[k] for k in ("c1", "Ct")) for i in idx]
         return self.observer.build(idx, e=e, v=v, a=a, pL=pL, ps=self.P[idx, P_PS],
                                    vib_rms=self.reward.vib_rms[idx], control=control,
-                                   u_pid=u_pid / self.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
+                                   u_pid=u_pid / st.u_range, phase=2 * np.pi * self.P[idx, P_PF] * self.T[idx],
                                    params=params, force=(self._observed_force(idx) if force is None else force)
-                                   if self.observe_force else None,
+                                   if st.observe_force else None,
                                    preview=self.preview(idx) if self.observer.preview_samples else None)
 
     def preview(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -477,17 +424,18 @@ class MillVibCore(EpisodeReads):
         (N: force steps and eccentricity) and the set-point's (m) from the hold that starts now to the one that
         starts k control samples ahead, for each look-ahead k; beyond the episode's end the last values hold. The
         force is the plant's own (exact) or, where the preview is measured, the gauge's (`envs.gauge`)."""
+        st = self.settings
         ks = np.asarray(self.observer.preview_samples)
-        now = self.k[idx] * self.n_sub
+        now = self.k[idx] * st.n_sub
         last = self.DFL.shape[1] - 1
         cols = np.minimum(now[:, None] + ks[None, :], last)
         rows = np.asarray(idx)[:, None]
-        dt = self.cfg.control_dt_s
+        dt = st.cfg.control_dt_s
         t_now = self.T[idx]
         forces = self.DFL if self.GF is None else self.GF
         force_now = forces[idx, np.minimum(now, last)]
         force_then = forces[rows, cols]
-        if self.gauge is None or self.gauge.eccentricity:
+        if st.gauge is None or st.gauge.eccentricity:
             force_now = force_now + self._eccentricity(idx, t_now)
             force_then = force_then + self._eccentricity(rows, t_now[:, None] + ks[None, :] * dt)
         xd_now = self.XD[idx, np.minimum(now, last)]
@@ -495,12 +443,12 @@ class MillVibCore(EpisodeReads):
 
     def _observed_force(self, idx: np.ndarray) -> np.ndarray:
         """The force channel: the load cells' reading in the sampled loop, else the true deviation."""
-        return self.CS[idx, K_FM] if self.loop is not None else self.force_deviation(idx)
+        return self.CS[idx, K_FM] if self.settings.loop is not None else self.force_deviation(idx)
 
     def force_deviation(self, idx: np.ndarray) -> np.ndarray:
         """The load cells' rolling-force deviation FL(t) - FL (N) of environments `idx` now: the force
         step of the period just integrated plus the roll eccentricity at the current time."""
-        col = np.clip(self.k[idx] * self.n_sub - 1, 0, self.DFL.shape[1] - 1)
+        col = np.clip(self.k[idx] * self.settings.n_sub - 1, 0, self.DFL.shape[1] - 1)
         return self.DFL[idx, col] + self._eccentricity(idx, self.T[idx])
 
     def _users_envelope(self, x_abs, pl_lo, pl_hi, last, terminated) -> np.ndarray:
@@ -508,7 +456,7 @@ class MillVibCore(EpisodeReads):
         assert self.envelope_fn is not None
         terms = EnvelopeTerms(x_abs.copy(), pl_lo.copy(), pl_hi.copy(), last[:, IX].copy(), last[:, IV].copy(),
                               last[:, IPL].copy(), self.T.copy(), terminated.copy())
-        return left_flags(self.envelope_fn, terms, self.n)
+        return left_flags(self.envelope_fn, terms, self.settings.n)
 
     def episode_metrics(self, i: int, terminated: bool) -> dict:
         """Episode-end metrics of environment i (`episode_metrics_batch` of one environment)."""
@@ -523,7 +471,7 @@ class MillVibCore(EpisodeReads):
 
         Records of equal length (episodes that end together) are transformed together, on the
         plant threads (`threads.use_threads`): the same numbers as one environment at a time."""
-        fs = self.cfg.sample_rate_hz
+        fs = self.settings.cfg.sample_rate_hz
         split = int(round(TRANSIENT_S * fs)) + 1
         records = []
         for i, term in zip(idx, terminated):
@@ -575,6 +523,6 @@ class MillVibCore(EpisodeReads):
         h["v"].append(self.YS[0, 1:, IV].copy())
         h["gains"].append(self.gains[0].copy())
         h["u"].append(float(self.AUXS[0, -1, A_U]))
-        keep = max(2, int(RENDER_WINDOW_S / self.period_s) + 1)
+        keep = max(2, int(RENDER_WINDOW_S / self.settings.period_s) + 1)
         for key in h:
             del h[key][:-keep]

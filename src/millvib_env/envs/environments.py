@@ -37,7 +37,7 @@ class MillVibEnv(gym.Env):
                                observe_phase=observe_phase, extra_disturbances=extra_disturbances,
                                reward_fn=reward_fn, envelope_fn=envelope_fn, base_controller=base_controller,
                                overrides=overrides)
-        self.config = self.core.cfg
+        self.config = self.core.settings.cfg
         self.action_space = self.core.action_space
         self.observation_space = self.core.observation_space
         self.render_mode = render_mode

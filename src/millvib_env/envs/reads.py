@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from millvib_env.envs.core_settings import CoreSettings
 from millvib_env.loop.kernel import K_UCTRL
 from millvib_env.plant.model import A_ACC, A_U, C_EA, C_EP, C_EW, IV, IX
 
@@ -34,9 +35,8 @@ class EpisodeReads:
     YS: np.ndarray
     AUXS: np.ndarray
     u_ff: np.ndarray
-    n_sub: int
-    spp: int
-    n_samp: int
+    #: the batch's fixed settings (its clock among them: `envs.core_settings`)
+    settings: CoreSettings
 
     def _eccentricity(self, idx: Any, t: Any) -> np.ndarray:
         """The roll eccentricity's force (N) at times t, as `plant_rhs` applies it."""
@@ -56,7 +56,7 @@ class EpisodeReads:
 
     def control_sample(self, idx: Any) -> np.ndarray:
         """The control sample each of environments `idx` is at: its column in the episode's courses."""
-        return self.k[idx] * self.n_sub
+        return self.k[idx] * self.settings.n_sub
 
     @property
     def course_samples(self) -> int:
@@ -95,11 +95,12 @@ class EpisodeReads:
 
     def period_setpoint(self, i: int) -> np.ndarray:
         """Environment i's set-point over the period about to run, at the plant's samples (call it before `step`)."""
-        return np.repeat(self.XD[i, self.k[i] * self.n_sub + np.arange(self.n_sub)], self.spp)
+        st = self.settings
+        return np.repeat(self.XD[i, self.k[i] * st.n_sub + np.arange(st.n_sub)], st.spp)
 
     def period_trace(self, i: int) -> dict[str, np.ndarray]:
         """Environment i's samples of the period just integrated: position "x" (m), velocity "v" (m/s),
         acceleration "a" (m/s^2) and valve command "u" (V)."""
-        n = self.n_samp
+        n = self.settings.n_samp
         return {"x": self.YS[i, 1:n + 1, IX].copy(), "v": self.YS[i, 1:n + 1, IV].copy(),
                 "a": self.AUXS[i, 1:n + 1, A_ACC].copy(), "u": self.AUXS[i, 1:n + 1, A_U].copy()}

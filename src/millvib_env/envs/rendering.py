@@ -58,16 +58,16 @@ def render_frame(core, figure=None, *, human: bool = False, fps: float | None = 
     if figure is None:
         figure = plt.figure(figsize=(6.4, 4.8), dpi=80)
     art = getattr(figure, "_millvib_artists", None)
-    if art is None or art["mode"] != core.mode:
-        art = figure._millvib_artists = _build(figure, core.mode)
+    if art is None or art["mode"] != core.settings.mode:
+        art = figure._millvib_artists = _build(figure, core.settings.mode)
     t_end = h["t"][-1]
     xs = np.concatenate(h["x"])
     vs = np.concatenate(h["v"])
-    ts = (t_end - core.dt_sample * np.arange(xs.size)[::-1]) * 1e3
+    ts = (t_end - core.settings.dt_sample * np.arange(xs.size)[::-1]) * 1e3
     art["x"].set_data(ts, xs * 1e6)
     art["v"].set_data(ts, vs * 1e3)
     steps = np.array(h["t"]) * 1e3
-    if core.mode == "gain":
+    if core.settings.mode == "gain":
         gains = np.array(h["gains"])
         for j, line in enumerate(art["c"]):
             line.set_data(steps, np.log10(np.maximum(gains[:, j], 1e-12)))
@@ -78,7 +78,7 @@ def render_frame(core, figure=None, *, human: bool = False, fps: float | None = 
         ax.autoscale_view()
     n_tr = int(core.n_trace[0])
     try:  # the band's 10 Hz edge needs 0.1 s of record
-        sev = vibration_severity(core.acc_trace[0, :n_tr], core.cfg.sample_rate_hz)
+        sev = vibration_severity(core.acc_trace[0, :n_tr], core.settings.cfg.sample_rate_hz)
     except ValueError:
         sev = math.nan
     p = core.params[0]

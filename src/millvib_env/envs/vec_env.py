@@ -41,7 +41,7 @@ class MillVibVecEnv(VecEnv):
                                observe_params=observe_params, observe_phase=observe_phase,
                                extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
                                base_controller=base_controller, overrides=overrides)
-        self.config = self.core.cfg
+        self.config = self.core.settings.cfg
         self.core.keep_history = render_mode is not None  # the render's recent samples: kept only where drawn
         super().__init__(n_envs, self.core.observation_space, self.core.action_space)
         self._actions: np.ndarray | None = None
@@ -99,7 +99,7 @@ class MillVibVecEnv(VecEnv):
         values = self._per_env(attr_name)
         if values is not None:
             return [values[i] for i in idx]
-        for owner in (self, self.core):
+        for owner in (self, self.core, self.core.settings):  # the engine's state, then its fixed settings
             if hasattr(owner, attr_name):
                 return [getattr(owner, attr_name)] * len(idx)
         raise AttributeError(f"MillVib environments have no attribute {shown(attr_name)}")

@@ -58,8 +58,8 @@ class MillVibVectorEnv(VectorEnv):
                                observe_params=observe_params, observe_phase=observe_phase,
                                extra_disturbances=extra_disturbances, reward_fn=reward_fn, envelope_fn=envelope_fn,
                                base_controller=base_controller, overrides=overrides)
-        self.config = self.core.cfg
-        self.num_envs = self.core.n
+        self.config = self.core.settings.cfg
+        self.num_envs = self.core.settings.n
         self.single_observation_space = self.core.observation_space
         self.single_action_space = self.core.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

@@ -157,7 +157,7 @@ def run_episodes(controller: Controller, seeds: Sequence[int], *, scenario: str 
     while any(r is None for r in records):
         action, state = controller.predict(obs, state=state, episode_start=episode_start, deterministic=True)
         # the step that ends every episode still running restarts none: a new episode's draw would be discarded
-        last = all(r is not None or core.steps_taken(i) + 1 >= core.max_steps for i, r in enumerate(records))
+        last = all(r is not None or core.steps_taken(i) + 1 >= core.settings.max_steps for i, r in enumerate(records))
         obs, dones, infos = venv.step(action, restart=not last)
         episode_start = dones
         controller.on_step(infos)
@@ -210,7 +210,7 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
     gains, state, start = [], None, np.ones(1, dtype=bool)
     while True:
         action, state = controller.predict(obs, state=state, episode_start=start, deterministic=True)
-        if core.mode == "gain":
+        if core.settings.mode == "gain":
             gains.append(core.gains_from_action(np.asarray(action, dtype=np.float64).reshape(1, -1))[0][:3])
         xd = core.period_setpoint(0)  # before an auto-reset
         obs, done, infos = venv.step(action)
@@ -222,8 +222,8 @@ def trace_episode(controller: Controller, *, scenario: str | None = None, seed: 
         if done[0]:
             break
     out: dict[str, Any] = {k: np.concatenate(v) for k, v in parts.items()}
-    out["t"] = np.arange(out["x"].size) * core.dt_sample
+    out["t"] = np.arange(out["x"].size) * core.settings.dt_sample
     out["gains"] = np.array(gains).reshape(-1, 3)
-    out["step_s"] = core.period_s
+    out["step_s"] = core.settings.period_s
     out["info"] = infos[0]
     return out

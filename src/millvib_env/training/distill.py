@@ -79,12 +79,12 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
             oracle.attach(core, as_teacher=True)
             oracle.on_reset(venv.reset_infos, range(len(seeds)))
     xs, ys = [], []
-    u_range = core.u_range
-    for _ in range(core.max_steps):
+    u_range = core.settings.u_range
+    for _ in range(core.settings.max_steps):
         u_t = teacher.teacher_commands()
         u_b = None if baseline is None else baseline.teacher_commands()
         if student is None:
-            action = np.zeros((core.n, 1), dtype=np.float32)
+            action = np.zeros((core.settings.n, 1), dtype=np.float32)
         else:
             with torch.no_grad():
                 x = torch.as_tensor(stats.normalize(obs))
@@ -97,7 +97,7 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
         ys.append(np.clip((u_t - (u_pid if u_b is None else u_b)) / u_range, -1.0, 1.0)[:, None])
         teacher.on_step(infos)
         if progress is not None:
-            progress.update(core.n)
+            progress.update(core.settings.n)
         if dones.all():
             break
     return np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
@@ -263,7 +263,7 @@ class _Run:
         if progress:
             from tqdm.auto import tqdm
             unwrapped: Any = env.unwrapped  # a millvib env: its core (envs.core.MillVibCore) knows the episode
-            bar = tqdm(total=iterations * self.episodes * unwrapped.core.max_steps, unit="step",
+            bar = tqdm(total=iterations * self.episodes * unwrapped.core.settings.max_steps, unit="step",
                        desc=f"distill {teacher} on {self.t.name}")
         return model, bar
 
