@@ -265,7 +265,8 @@ def _cmd_distill(args) -> int:
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
                    loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]),
                    preview_gauge=args.preview, on=args.on,
-                   validation_episodes=args.validation_episodes, budget=args.budget, filters=tuple(args.filters))
+                   validation_episodes=args.validation_episodes, budget=args.budget, filters=tuple(args.filters),
+                   validate_from=args.validate_from, batch=args.batch)
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
         print(f"updated {write_manifest()}")

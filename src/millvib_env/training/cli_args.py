@@ -83,6 +83,11 @@ def add_distill_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
                    help="each iteration's student is scored on the first N of the task's validation plants "
                         "(default 40, as the shipped agents')")
+    p.add_argument("--validate-from", type=int, default=1, metavar="K",
+                   help="score the students of iterations K on only (the earlier ones are not candidates; default "
+                        "1: every iteration's)")
+    p.add_argument("--batch", type=int, default=1024,
+                   help="the least-squares fit's batch of samples (default 1024)")
     p.add_argument("--net", type=int, nargs="+", default=[256, 256], metavar="UNITS",
                    help="the student's hidden layers (default 256 256)")
     p.add_argument("--range-v", type=float, default=100.0,

@@ -104,9 +104,9 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
 
 
 def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int, per_epoch: int | None = None,
-         lr: float = 1e-3) -> float:
+         lr: float = 1e-3, batch: int = 1024) -> float:
     """Least squares of the PPO actor's mean action on (X, Y); returns the final mean squared error. An epoch is a
-    pass over all of (X, Y), or (`per_epoch`) that many samples drawn from it, in batches of at most 1024: the draws
+    pass over all of (X, Y), or (`per_epoch`) that many samples drawn from it, in batches of at most `batch`: the draws
     run through shuffles of the whole pool, one after another, so every sample is drawn before any is drawn again
     (a shuffle's last batch may be short)."""
     import torch
@@ -125,7 +125,7 @@ def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int, per
         while left > 0:
             if at >= n:  # the next shuffle of the pool
                 order, at = torch.randperm(n, generator=gen), 0
-            size = min(1024, left, n - at)  # a shuffle's last batch may be short
+            size = min(batch, left, n - at)  # a shuffle's last batch may be short
             idx = order[at:at + size]
             at += size
             left -= size
@@ -151,7 +151,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
             validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured", on: str | None = None,
-            budget: str = "iteration", filters=()) -> dict:
+            budget: str = "iteration", filters=(), validate_from: int = 1, batch: int = 1024) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
     on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents'). The
@@ -169,7 +169,10 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     grows with every iteration), Adam's step 1e-3; "iteration": `epochs` passes' worth of one iteration's samples,
     drawn from the whole pool, with Adam's step 1e-3 / sqrt(k) at iteration k (the network, warm from the last
     iteration, is refitted at a constant cost and moves less as the pool grows; the default). The two compared on
-    the varied mill: docs/performance.md ("The distillation's fit budget")."""
+    the varied mill: docs/performance.md ("The distillation's fit budget"). `batch`: the fit's batch of samples.
+
+    `validate_from`: the students of iterations `validate_from`.. are scored and the best of them is shipped; the
+    earlier ones are not candidates (in every student shipped so far the best came at iteration 11 or later)."""
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
     seed = integer("seed", seed, lo=0, hi=49)
@@ -177,6 +180,8 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     episodes = integer("episodes", episodes, lo=1, hi=TRAIN_SEED_STRIDE)
     epochs = integer("epochs", epochs, lo=1, hi=1000)
     validation_episodes = integer("validation_episodes", validation_episodes, lo=1, hi=len(t.seeds["validation"]))
+    validate_from = integer("validate_from", validate_from, lo=1, hi=iterations)
+    batch = integer("batch", batch, lo=1, hi=1 << 20)
     import torch
 
     torch.manual_seed(seed)
@@ -188,7 +193,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
         raise ValueError(f"preview_gauge = {preview_gauge!r} is invalid: 'measured' or 'exact'")
     kwargs = _student_kwargs(t, preview, range_v, history, loop_sample, preview_gauge, on, filters)
     run = _Run(t, seed, episodes, epochs, budget, validation_episodes,
-               _card_maker(t, kwargs, seed, teacher, episodes, epochs, command, baseline, on, budget),
+               _card_maker(t, kwargs, seed, teacher, episodes, epochs, command, baseline, on, budget, batch),
                load_controller(teacher, t, version="v1"),
                None if baseline is None else load_controller(baseline, t, version="v1"))
     model, bar = run.start(kwargs, layers, iterations, progress, teacher)
@@ -196,6 +201,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     import tempfile
 
     work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
+    run.validate_from, run.batch = validate_from, batch
     for it in range(iterations):
         run.iteration(it, model, kwargs, work, bar)
     if bar is not None:
@@ -226,14 +232,14 @@ def _student_kwargs(t: Task, preview, range_v: float, history, loop_sample: str,
 
 
 def _card_maker(t: Task, kwargs: dict, seed: int, teacher: str, episodes: int, epochs: int, command, baseline, on,
-                budget: str):
+                budget: str, batch: int = 1024):
     """card(iteration, samples, mse): the card of the student of an iteration; its env_kwargs name the task's
     config, so that the card alone rebuilds the environment (the plain SB3 recipe)."""
     card_kwargs = {"config": t.config, **kwargs}
 
     def card(iteration: int, samples: int, mse: float) -> dict:
         return _card(t.name, ENV_ID, card_kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
-                     baseline, on, budget)
+                     baseline, on, budget, batch)
     return card
 
 
@@ -250,6 +256,9 @@ class _Run:
         self.stats: ObsStats | None = None
         self.history: list[dict] = []
         self.best: Any = None
+        #: the first iteration whose student is scored (and may be shipped), and the fit's batch
+        self.validate_from = 1
+        self.batch = 1024
 
     def start(self, kwargs: dict, layers: list[int], iterations: int, progress: bool, teacher: str):
         """The student's SB3 PPO model (its actor is the student) and the progress bar (None: none)."""
@@ -282,11 +291,16 @@ class _Run:
         stats = self.stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)),
                                       10.0, 1e-8)
         if self.budget == "pool":
-            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it)
+            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, batch=self.batch)
         else:  # one iteration's worth of samples an epoch, and a step that shrinks as the pool grows
-            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, per_epoch=len(Y), lr=1e-3 / np.sqrt(it + 1))
+            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, per_epoch=len(Y), lr=1e-3 / np.sqrt(it + 1),
+                       batch=self.batch)
         policy = model.policy
         self.student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))
+        if it + 1 < self.validate_from:  # not a candidate: its fit is recorded, not its score
+            self.history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse})
+            _say(bar, f"iteration {it + 1}: fitted (students are scored from iteration {self.validate_from} on)")
+            return
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
         val_first = t.seeds["validation"].start
@@ -309,7 +323,9 @@ class _Run:
         card.update({"validation": val, "iterations": self.history, "wall_time_s": round(time.time() - start, 1),
                      "n_timesteps": int(self.history[it - 1]["samples"]),  # the loop samples its student was fitted on
                      "selected": {"iteration": it, "how": "the best validation cost among the iterations' students "
-                                                          "(iteration 0, the reference alone, never among them)"}})
+                                                          + (f"from iteration {self.validate_from} on "
+                                                             if self.validate_from > 1 else "")
+                                                          + "(iteration 0, the reference alone, never among them)"}})
         write_text_atomic(folder / "card.json", json.dumps(card, indent=2))
         return card
 
@@ -323,7 +339,7 @@ def _write_agent(folder: Path, model, stats, card: dict) -> None:
 
 
 def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samples, mse, command,
-          baseline=None, on=None, budget="pool") -> dict:
+          baseline=None, on=None, budget="pool", batch=1024) -> dict:
     suffix = "" if task == "startup" else f"-{task}"
     name = f"dagger-on-{on}{suffix}" if on else f"dagger-residual-preview{suffix}"
     return {"name": name, **({"on": on} if on else {}), "algo": "ppo", "env_id": env_id, "task": task,
@@ -334,7 +350,7 @@ def _card(task, env_id, kwargs, seed, teacher, iteration, episodes, epochs, samp
                                                      if baseline else "")
                           + f": {iteration} iteration(s) of {episodes} training episodes, "
                           f"{samples} labelled loop samples pooled, {epochs} epochs of least squares (Adam, "
-                          f"batch 1024) per iteration"
+                          f"batch {batch}) per iteration"
                           + ("" if budget == "pool" else ", each epoch one iteration's worth of samples drawn from "
                                                          "the pool, step 1e-3/sqrt(iteration)")
                           + f"; final fit MSE {mse:.3g} (actions in [-1, 1])",
