@@ -336,6 +336,32 @@ def test_distill_writes_an_agent_that_loads_and_runs_as_any_other(tmp_path, caps
     assert np.isfinite(rec["cost"]) and not rec["diverged"]
 
 
+def test_distill_scores_the_students_from_the_iteration_asked_and_fits_in_the_batch_asked(tmp_path, monkeypatch):
+    """`distill(validate_from=K, batch=B)`: the students of the iterations before K are fitted and recorded, never
+    scored or shipped; the card says where the candidates began and the fit's batch."""
+    import millvib_env.training.distill as dist
+
+    scored, sizes = [], []
+    score, fit = dist.validation_result, dist._fit
+
+    def spy_score(folder, card=None, episodes=40):
+        scored.append(card["trained_by"])
+        return score(folder, card, episodes=episodes)
+
+    def spy_fit(model, X, Y, stats, epochs, seed, **how):
+        sizes.append(how["batch"])
+        return fit(model, X, Y, stats, epochs, seed, **how)
+    monkeypatch.setattr(dist, "validation_result", spy_score)
+    monkeypatch.setattr(dist, "_fit", spy_fit)
+    card = dist.distill("startup", iterations=2, episodes=1, epochs=1, save_dir=tmp_path / "agent", progress=False,
+                        validation_episodes=1, validate_from=2, batch=512, net=(8,))
+    assert sizes == [512, 512] and len(scored) == 1 and "batch 512" in card["trained_by"]
+    assert [("cost_mean" in r) for r in card["iterations"]] == [False, True]
+    assert card["selected"]["iteration"] == 2 and "from iteration 2 on" in card["selected"]["how"]
+    with pytest.raises(ValueError, match="validate_from = 3 is invalid"):
+        dist.distill("startup", iterations=2, validate_from=3, save_dir=tmp_path / "b", progress=False)
+
+
 @pytest.mark.slow
 def test_distill_on_the_classical_preview_controller_learns_what_it_misses_from_its_command(tmp_path, monkeypatch):
     """`distill --on pid-pf-preview`: the student's environment runs pid-pf-preview's feedforward (its card holds the

@@ -46,7 +46,7 @@ from millvib_env.control.base import Controller
 from millvib_env.envs.batch import env_id_for
 from millvib_env.loop.kernel import K_UAPP, K_UPEND
 from millvib_env.params import MillParams
-from millvib_env.plant.model import IUI, IX, P_PA, STATE_NAMES, supply_ripple
+from millvib_env.plant.model import IUI, IX, STATE_NAMES, supply_ripple_rows
 from millvib_env.threads import one_blas_thread
 
 if TYPE_CHECKING:
@@ -284,6 +284,8 @@ class MPCPolicy(Controller):
         n = core.settings.n
         self._models = [None] * n
         self._keys = [None] * n
+        # per environment: a model is built, its set-point, and whether its plant moves within the episode
+        self._built, self._built_xd, self._moves = np.zeros(n, bool), np.zeros(n), np.zeros(n, bool)
         self._stack = {}  # every environment's model, stacked (`_place`), made at the first model
         self._xi = np.zeros(n)
 
@@ -303,6 +305,7 @@ class MPCPolicy(Controller):
                 st["has_w"][i] = st["has_pred"][i] = False
                 st["w"][i] = 0.0
             self._keys[i] = None  # a new episode, a new plant: the model is rebuilt at its first sample
+            self._built[i] = False
 
     def _model(self, i: int, xd: float) -> MPCModel:
         core = self._core
@@ -329,6 +332,7 @@ class MPCPolicy(Controller):
                      np.full(N, (umax - m.u0) / U_SCALE_V), np.full(N, (-umax - m.u0) / U_SCALE_V))
         m.solver = solver
         self._models[i], self._keys[i] = m, key
+        self._built[i], self._built_xd[i], self._moves[i] = True, xd, core.plant_moves(i)
         self._place(i, m, umax)
         return m
 
@@ -384,9 +388,7 @@ class MPCPolicy(Controller):
         else:
             e[:, :, 0] = core.force_course(rows, at_f, tm_f)
         tm_r = tm if "ripple" in known else tm_now
-        for j, i in enumerate(idx):
-            p = core.plant_pack(i)
-            e[j, :, 1] = supply_ripple(tm_r[j], p) if p[P_PA] != 0.0 else 0.0
+        e[:, :, 1] = supply_ripple_rows(np.ascontiguousarray(tm_r), core.plant_packs(idx))
         # the set-point at each step's end
         at_s = at if "setpoint" in known else at_now
         e[:, :, 2] = core.setpoint_course(rows, np.minimum(at_s + 1, last)) - xd0[:, None]
@@ -407,7 +409,12 @@ class MPCPolicy(Controller):
         idx = np.arange(core.settings.n) if idx is None else np.asarray(idx, dtype=np.intp)
         last = core.course_samples - 1
         xd_now = core.setpoint_course(idx, np.minimum(core.control_sample(idx), last))
-        models = [self._model(int(i), float(x)) for i, x in zip(idx, xd_now)]
+        # `_model`'s test for each environment at once where its plant is fixed (its c1 and Ct, and their logs,
+        # are the model's): a new model only where none is built or the set-point moved past REBUILD_XD_M
+        check = ~self._built[idx] | self._moves[idx] | (np.abs(self._built_xd[idx] - xd_now) > REBUILD_XD_M)
+        for i, x in zip(idx[check].tolist(), xd_now[check].tolist()):
+            self._model(i, x)
+        solvers = [self._models[i].solver for i in idx]  # type: ignore[union-attr]  # each built above
         st = self._stack
         whole = len(idx) == core.settings.n and bool(np.all(idx == np.arange(core.settings.n)))
         sel = slice(None) if whole else idx
@@ -450,8 +457,8 @@ class MPCPolicy(Controller):
             + st["G_u"][sel] * (held - u0)[:, None] + mv(st["G_w"][sel], w)
         q *= st["q_scale"][sel][:, None]
         z0 = np.empty(len(idx))
-        for j, m in enumerate(models):
-            z0[j], status = _solve_first_move(m.solver, q[j])
+        for j, solver in enumerate(solvers):
+            z0[j], status = _solve_first_move(solver, q[j])
             if status < 1:  # DAQP failed (its first move is then taken as no move from the operating point's command)
                 self.unsolved += 1
         self.solves += len(idx)

@@ -35,6 +35,7 @@ class EpisodeReads:
     YS: np.ndarray
     AUXS: np.ndarray
     u_ff: np.ndarray
+    profiles: list
     #: the batch's fixed settings (its clock among them: `envs.core_settings`)
     settings: CoreSettings
 
@@ -83,6 +84,15 @@ class EpisodeReads:
     def plant_pack(self, i: int) -> np.ndarray:
         """Environment i's packed plant parameters (`plant.model.pack_params`: the pump's ripple among them)."""
         return self.P[i].copy()
+
+    def plant_packs(self, idx: Any) -> np.ndarray:
+        """`plant_pack` of environments `idx`, one row each."""
+        return np.array(self.P[idx])
+
+    def plant_moves(self, i: int) -> bool:
+        """Whether environment i's plant moves within its episode (a plant change: `current_params` follows it)."""
+        profile = self.profiles[i]
+        return profile is not None and profile.change is not None
 
     def controller_state(self, idx: Any, which: int) -> np.ndarray:
         """Entry `which` (`loop.kernel.CS_NAMES`) of the digital controllers' states of environments `idx`."""

@@ -198,6 +198,19 @@ def supply_ripple(times, p):
 
 
 @njit(cache=True)
+def supply_ripple_rows(times, packs):
+    """`supply_ripple` of many plants in one compiled call: row r of `times` (s) on the plant packed in row r of
+    `packs`, zero for a plant without pulsation (its amplitude P_PA zero)."""
+    out = np.zeros(times.shape)
+    for r in range(times.shape[0]):
+        p = packs[r]
+        if p[P_PA] != 0.0:
+            for j in range(times.shape[1]):
+                out[r, j] = supply_pressure(times[r, j], p) - p[P_PS]
+    return out
+
+
+@njit(cache=True)
 def change_fraction(t, t0, duration):
     """Progress s in [0, 1] of a within-run plant change at time t: smoothstep of (t - t0)/duration."""
     if t <= t0:
