@@ -130,7 +130,7 @@ def test_outside_envs_no_code_reads_the_engines_arrays():
 #: the package's modules that a function may import inside itself: laziness is the point (torch and SB3,
 #: scipy.signal, matplotlib) (docs/architecture.md, "Imports at the top")
 LAZY_MODULES = {"millvib_env.envs.vec_env", "millvib_env.analysis.dynamics", "millvib_env.analysis.paper",
-                "millvib_env.analysis.solver_study", "millvib_env.bench",
+                "millvib_env.analysis.solver_study", "millvib_env.speed",
                 "millvib_env.envs.rendering"}
 #: the files whose function-local imports are all deliberate (the CLI, the launcher, the package's __init__)
 LAZY_FILES = {"src/millvib_env/cli.py", "src/millvib_cli/__init__.py", "src/millvib_env/__init__.py"}

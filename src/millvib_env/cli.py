@@ -171,18 +171,18 @@ def _cmd_speed(args) -> int:
 
 
     check_output(args.json, "--json")
-    from millvib_env import bench
+    from millvib_env import speed
 
-    result = {"plant": bench.bench_plant(t_end=args.t_end, repeats=args.repeats, batch_size=args.batch_size,
+    result = {"plant": speed.bench_plant(t_end=args.t_end, repeats=args.repeats, batch_size=args.batch_size,
                                          progress=not args.quiet)}
-    print(bench.format_plant_bench(result["plant"]))
+    print(speed.format_plant_bench(result["plant"]))
     if not args.plant_only:
-        env_res = bench.bench_envs(progress=not args.quiet)
+        env_res = speed.bench_envs(progress=not args.quiet)
         result["envs"] = env_res
         print()
-        print(bench.format_env_bench(env_res))
+        print(speed.format_env_bench(env_res))
     if args.json:
-        bench.save_json(result, args.json)
+        speed.save_json(result, args.json)
         print(f"\nwrote {args.json}")
     if args.command == "bench":  # the earlier name, kept for one release
         print("note: millvib bench is now 'millvib speed' ('bench' stays for one release)", file=sys.stderr)
