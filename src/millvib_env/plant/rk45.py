@@ -109,8 +109,81 @@ def _first_step(t0, y0, f0, t_bound, max_step, rtol, atol, p, c, aux):
     return min(100 * h0, h1, interval, max_step)
 
 
+@njit(cache=True, inline="always")
+def _rk_step(t, h, y, f, K, yt, y_new, p, c, aux):
+    """One Dormand-Prince step of size h from (t, y) with f = f(t, y): K[0] = f, stages 1..5, the fifth-order
+    solution into y_new and its derivative into K[6] (FSAL), as scipy's `rk_step`."""
+    n = NY
+    for i in range(n):
+        K[0, i] = f[i]
+    for s in range(1, _N_STAGES):
+        for i in range(n):
+            acc = 0.0
+            for j in range(s):
+                acc += K[j, i] * A[s, j]
+            yt[i] = y[i] + acc * h
+        plant_rhs(t + C[s] * h, yt, p, c, K[s], aux)
+    for i in range(n):
+        acc = 0.0
+        for j in range(_N_STAGES):
+            acc += K[j, i] * B[j]
+        y_new[i] = y[i] + h * acc
+    plant_rhs(t + h, y_new, p, c, K[_N_STAGES], aux)
+
+
+@njit(cache=True, inline="always")
+def _error_norm(K, h, y, y_new, atol, rtol, err):
+    """The step's error estimate, scaled per state by atol + max(|y|, |y_new|) rtol, as an RMS norm."""
+    n = NY
+    for i in range(n):
+        acc = 0.0
+        for j in range(_N_STAGES + 1):
+            acc += K[j, i] * E[j]
+        err[i] = acc * h / (atol[i] + max(abs(y[i]), abs(y_new[i])) * rtol)
+    return _rms(err, n)
+
+
+@njit(cache=True, inline="always")
+def _next_step(h_abs, error_norm, rejected):
+    """scipy's step-size control: (the next step's size, whether this step is accepted); a step after a rejection
+    does not grow."""
+    if error_norm < 1:
+        if error_norm == 0:
+            factor = _MAX_FACTOR
+        else:
+            factor = min(_MAX_FACTOR, _SAFETY * error_norm ** (-1.0 / (_ERROR_ORDER + 1)))
+        if rejected:
+            factor = min(1.0, factor)
+        return h_abs * factor, True
+    return h_abs * max(_MIN_FACTOR, _SAFETY * error_norm ** (-1.0 / (_ERROR_ORDER + 1))), False
+
+
+@njit(cache=True, inline="always")
+def _dense_output(K, t_old, t, y, t_eval, k_out, out, Q):
+    """The samples of `t_eval` in (t_old, t] from the step's quartic dense output, written into `out` from row
+    k_out on; returns the next row."""
+    n = NY
+    n_out = t_eval.shape[0]
+    hd = t - t_old
+    for i in range(n):  # Q = K.T P
+        for m in range(4):
+            acc = 0.0
+            for j in range(_N_STAGES + 1):
+                acc += K[j, i] * P[j, m]
+            Q[i, m] = acc
+    while k_out < n_out and t_eval[k_out] <= t:
+        x = (t_eval[k_out] - t_old) / hd
+        x2 = x * x
+        x3 = x2 * x
+        x4 = x3 * x
+        for i in range(n):
+            out[k_out, i] = hd * (Q[i, 0] * x + Q[i, 1] * x2 + Q[i, 2] * x3 + Q[i, 3] * x4) + y[i]
+        k_out += 1
+    return k_out
+
+
 @njit(cache=True)
-def rk45_segment(p, c, y0, t0, t_eval, rtol, atol, max_step, lo, hi, p_max, out):  # noqa: C901 (one loop)
+def rk45_segment(p, c, y0, t0, t_eval, rtol, atol, max_step, lo, hi, p_max, out):
     """Integrate from (t0, y0) to t_eval[-1] with the drive c held, as `solve_ivp(..., method="RK45",
     t_eval=t_eval)` does; writes out[k] at t_eval[k].
 
@@ -156,43 +229,13 @@ def rk45_segment(p, c, y0, t0, t_eval, rtol, atol, max_step, lo, hi, p_max, out)
                 t_new = t_bound
             h = t_new - t
             h_abs = abs(h)
-            # rk_step: K[0] = f, stages 1..5, the fifth-order solution and its derivative (FSAL)
-            for i in range(n):
-                K[0, i] = f[i]
-            for s in range(1, _N_STAGES):
-                for i in range(n):
-                    acc = 0.0
-                    for j in range(s):
-                        acc += K[j, i] * A[s, j]
-                    yt[i] = y[i] + acc * h
-                plant_rhs(t + C[s] * h, yt, p, c, K[s], aux)
-            for i in range(n):
-                acc = 0.0
-                for j in range(_N_STAGES):
-                    acc += K[j, i] * B[j]
-                y_new[i] = y[i] + h * acc
-            plant_rhs(t + h, y_new, p, c, K[_N_STAGES], aux)
+            _rk_step(t, h, y, f, K, yt, y_new, p, c, aux)
             nfev += _N_STAGES
-            for i in range(n):
-                acc = 0.0
-                for j in range(_N_STAGES + 1):
-                    acc += K[j, i] * E[j]
-                err[i] = acc * h / (atol[i] + max(abs(y[i]), abs(y_new[i])) * rtol)
-            error_norm = _rms(err, n)
+            error_norm = _error_norm(K, h, y, y_new, atol, rtol, err)
             if not math.isfinite(error_norm):
                 return HANDED_BACK, nfev
-            if error_norm < 1:
-                if error_norm == 0:
-                    factor = _MAX_FACTOR
-                else:
-                    factor = min(_MAX_FACTOR, _SAFETY * error_norm ** (-1.0 / (_ERROR_ORDER + 1)))
-                if rejected:
-                    factor = min(1.0, factor)
-                h_abs *= factor
-                accepted = True
-            else:
-                h_abs *= max(_MIN_FACTOR, _SAFETY * error_norm ** (-1.0 / (_ERROR_ORDER + 1)))
-                rejected = True
+            h_abs, accepted = _next_step(h_abs, error_norm, rejected)
+            rejected = rejected or not accepted
         t_old = t
         t = t_new
         # the terminal event: solve_ivp would locate where the state left; the caller's solve_ivp does
@@ -201,21 +244,7 @@ def rk45_segment(p, c, y0, t0, t_eval, rtol, atol, max_step, lo, hi, p_max, out)
             return HANDED_BACK, nfev
         # the samples in (t_old, t], from the step's quartic dense output
         if k_out < n_out and t_eval[k_out] <= t:
-            hd = t - t_old
-            for i in range(n):  # Q = K.T P
-                for m in range(4):
-                    acc = 0.0
-                    for j in range(_N_STAGES + 1):
-                        acc += K[j, i] * P[j, m]
-                    Q[i, m] = acc
-            while k_out < n_out and t_eval[k_out] <= t:
-                x = (t_eval[k_out] - t_old) / hd
-                x2 = x * x
-                x3 = x2 * x
-                x4 = x3 * x
-                for i in range(n):
-                    out[k_out, i] = hd * (Q[i, 0] * x + Q[i, 1] * x2 + Q[i, 2] * x3 + Q[i, 3] * x4) + y[i]
-                k_out += 1
+            k_out = _dense_output(K, t_old, t, y, t_eval, k_out, out, Q)
         for i in range(n):
             y[i] = y_new[i]
             f[i] = K[_N_STAGES, i]
