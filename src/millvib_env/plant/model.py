@@ -233,22 +233,29 @@ def damping_and_leakage(t, p, c):
     return c1, ct
 
 
-@njit(cache=True, inline="always")
-def pid_command(t, y, c, umax):
-    """The PID (11) of the drive `c`: derivative on measurement, integral term as state, pressure feedback, the load
-    cells' force fed forward, an external command added; saturated at +-`umax` with anti-windup. Returns the
-    command u (V), the integral term's derivative and the roll eccentricity's force now (N)."""
+@njit(cache=True)
+def plant_rhs(t, y, p, c, dy, aux):
+    """Closed-loop derivatives dy = f(t, y) and the auxiliary outputs (a, u, xv, QL, Ff, ps).
+
+    `p` is the packed vector of `pack(params)`, `c` a drive vector (module docstring).
+    """
     x = y[IX]
+    v = y[IV]
+    pL = y[IPL]
+    z = y[IZ]
+
+    # PID (11), derivative on measurement, integral term as state, saturation + anti-windup
     e = c[C_XD] - x
-    u_pid = c[C_KP] * e + y[IUI] - c[C_KD] * y[IV]
+    u_pid = c[C_KP] * e + y[IUI] - c[C_KD] * v
     if c[C_KPL] != 0.0:
-        u_pid -= c[C_KPL] * (y[IPL] - c[C_PLREF])
+        u_pid -= c[C_KPL] * (pL - c[C_PLREF])
     ecc = 0.0
     if c[C_EA] != 0.0:
         ecc = c[C_EA] * math.sin(c[C_EW] * t + c[C_EP])
     if c[C_KFF] != 0.0:  # the load cells' force deviation, fed forward
         u_pid += c[C_KFF] * (c[C_DFL] + ecc)
     u = c[C_PID] * u_pid + c[C_UEXT]
+    umax = p[P_UMAX]
     dui = c[C_PID] * c[C_KI] * e
     if u > umax:
         u = umax
@@ -258,15 +265,9 @@ def pid_command(t, y, c, umax):
         u = -umax
         if dui < 0.0:
             dui = 0.0
-    return u, dui, ecc
 
-
-@njit(cache=True, inline="always")
-def valve_flow(t, y, p, u, dy):
-    """The servo amplifier and valve (2)-(3) and the orifice flow (1) with the pump's pulsation and the regularised
-    signed root dp / (dp^2 + dp_reg^2)^(1/4), for the command u: writes the spool's derivatives into `dy` and
-    returns the port opening xv (m), the load flow QL (m^3/s) and the supply pressure now (Pa)."""
-    pL = y[IPL]
+    # servo amplifier and valve (2)-(3); orifice flow (1) with pump pulsation and the regularised
+    # signed root dp / (dp^2 + dp_reg^2)^(1/4)
     ps_t = supply_pressure(t, p)
     if p[D_VW] > 0.0:  # a valve with dynamics: the spool lags the command (second order)
         wn = p[D_VW]
@@ -289,22 +290,6 @@ def valve_flow(t, y, p, u, dy):
         else:
             dp = pL - p[P_PT]
         ql = p[D_KQ] * uv * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
-    return xv, ql, ps_t
-
-
-@njit(cache=True)
-def plant_rhs(t, y, p, c, dy, aux):
-    """Closed-loop derivatives dy = f(t, y) and the auxiliary outputs (a, u, xv, QL, Ff, ps).
-
-    `p` is the packed vector of `pack(params)`, `c` a drive vector (module docstring). The PID's command
-    (`pid_command`) and the valve's flow (`valve_flow`) are inlined into it.
-    """
-    x = y[IX]
-    v = y[IV]
-    pL = y[IPL]
-    z = y[IZ]
-    u, dui, ecc = pid_command(t, y, c, p[P_UMAX])
-    xv, ql, ps_t = valve_flow(t, y, p, u, dy)
 
     # continuity (4): V = Ap (L1 + x)
     c1, ct = damping_and_leakage(t, p, c)
