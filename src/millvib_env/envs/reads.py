@@ -81,12 +81,9 @@ class EpisodeReads:
                              "observation.preview_samples and observation.preview_gauge: measured")
         return self.GF[rows, cols] + self._eccentricity(rows, t)
 
-    def plant_pack(self, i: int) -> np.ndarray:
-        """Environment i's packed plant parameters (`plant.model.pack_params`: the pump's ripple among them)."""
-        return self.P[i].copy()
-
     def plant_packs(self, idx: Any) -> np.ndarray:
-        """`plant_pack` of environments `idx`, one row each."""
+        """The packed plant parameters (`plant.model.pack_params`: the pump's ripple among them) of environments
+        `idx`, one row each."""
         return np.array(self.P[idx])
 
     def plant_moves(self, i: int) -> bool:

@@ -188,19 +188,10 @@ def supply_pressure(t, p):
 
 
 @njit(cache=True)
-def supply_ripple(times, p):
-    """ps(t) - ps (Pa) at each of `times`: `supply_pressure`'s pulsation over an array of times (a model's
-    horizon, `control.mpc`), in one compiled call instead of one per time."""
-    out = np.empty(times.shape[0])
-    for j in range(times.shape[0]):
-        out[j] = supply_pressure(times[j], p) - p[P_PS]
-    return out
-
-
-@njit(cache=True)
 def supply_ripple_rows(times, packs):
-    """`supply_ripple` of many plants in one compiled call: row r of `times` (s) on the plant packed in row r of
-    `packs`, zero for a plant without pulsation (its amplitude P_PA zero)."""
+    """ps(t) - ps (Pa), `supply_pressure`'s pulsation, of many plants in one compiled call (a model's horizon per
+    environment, `control.mpc`): row r of `times` (s) on the plant packed in row r of `packs`, zero for a plant
+    without pulsation (its amplitude P_PA zero)."""
     out = np.zeros(times.shape)
     for r in range(times.shape[0]):
         p = packs[r]
