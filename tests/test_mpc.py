@@ -571,3 +571,27 @@ def test_what_the_preview_bound_knows_ahead_can_be_withdrawn_course_by_course():
 def test_what_the_bound_knows_ahead_refuses_a_name_it_does_not_know(kw, what):
     with pytest.raises(ValueError, match=re.escape(what)):
         MPCSettings(**kw)
+
+
+def test_the_distillation_pool_grows_in_place_and_keeps_numpys_statistics():
+    """`distill._Pool` keeps every iteration's samples in order, grows past the rows it foresaw, and gives the
+    statistics of numpy's mean and var of the pooled float32 samples (a block at a time, the running sum carried
+    as a row: the same sums, compared here within float32 rounding of a sum of that many rows) and the pool
+    normalised into its own buffer, as `ObsStats.normalize` gives it."""
+    from millvib_env.training.distill import _Pool
+
+    rng = np.random.default_rng(5)
+    parts = [((rng.normal(size=(n, 4)) * [1.0, 30.0, 1e-3, 5.0]) + [0.0, 1e3, 2.0, -7.0]).astype(np.float32)
+             for n in (70000, 70000, 90000)]
+    pool = _Pool(2 * 70000)  # the third part is longer than foreseen: the buffers grow
+    for X in parts:
+        pool.add(X, X[:, :1] * 2.0)
+    X = np.concatenate(parts)
+    assert pool.n == len(X) and np.array_equal(pool.X[:pool.n], X) and np.array_equal(pool.Y[:pool.n], 2.0 * X[:, :1])
+    stats = pool.stats()
+    np.testing.assert_allclose(stats.mean, X.mean(0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(stats.var, X.var(0), rtol=1e-4)
+    Xn, Yn = pool.normalized(stats)
+    assert np.array_equal(Xn, stats.normalize(X)) and np.array_equal(Yn, pool.Y[:pool.n])
+    with pytest.raises(ValueError, match="out is invalid"):
+        stats.normalize(X, out=np.empty((3, 4), np.float32))

@@ -35,16 +35,20 @@ class ObsStats:
     clip_obs: float
     epsilon: float
 
-    def normalize(self, obs: np.ndarray) -> np.ndarray:
+    def normalize(self, obs: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """VecNormalize's observation transform, as float32. A large batch (a distillation's pooled samples) is
         transformed `_ROWS` rows at a time into the output: the same operations on every element, so the same
         numbers, without the whole batch's float64 temporaries (twenty times faster on a distillation's pool:
-        docs/performance.md)."""
+        docs/performance.md). `out`: a float32 array of the batch's shape to write into (a distillation reuses
+        one for its pool), returned."""
         obs = np.asarray(obs)
         scale = np.sqrt(self.var + self.epsilon)
-        if obs.ndim < 2 or obs.shape[0] <= _ROWS:
+        if out is None and (obs.ndim < 2 or obs.shape[0] <= _ROWS):
             return np.clip((obs - self.mean) / scale, -self.clip_obs, self.clip_obs).astype(np.float32)
-        out = np.empty(obs.shape, dtype=np.float32)
+        if out is None:
+            out = np.empty(obs.shape, dtype=np.float32)
+        elif out.shape != obs.shape or out.dtype != np.float32:
+            raise ValueError(f"out is invalid: a float32 array of shape {obs.shape}, not {out.dtype} {out.shape}")
         for i in range(0, obs.shape[0], _ROWS):
             out[i:i + _ROWS] = np.clip((obs[i:i + _ROWS] - self.mean) / scale, -self.clip_obs, self.clip_obs)
         return out

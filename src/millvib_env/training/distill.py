@@ -103,19 +103,69 @@ def _rollout(student, teacher, env_id: str, env_kwargs: dict, task: Task, seeds:
     return np.concatenate(xs).astype(np.float32), np.concatenate(ys).astype(np.float32)
 
 
+class _Pool:
+    """DAgger's pooled samples in buffers that grow in place (no copy of the whole pool at each iteration), and
+    its normalised observations in one reused buffer. `stats` gives numpy's ``mean(0)`` and ``var(0)`` of the
+    float32 pool, the same numbers (rows summed in order, as numpy sums a C-ordered array along its first axis, a
+    block at a time with the running sum as the block's first row), without the pool-sized temporaries."""
+
+    _BLOCK = 65536
+
+    def __init__(self, rows: int):
+        self.rows, self.n = max(1, int(rows)), 0
+        self.X: np.ndarray = np.empty((0, 0), np.float32)
+        self.Y: np.ndarray = np.empty((0, 0), np.float32)
+        self.Xn: np.ndarray = np.empty((0, 0), np.float32)
+
+    def add(self, X: np.ndarray, Y: np.ndarray) -> None:
+        if self.n + len(X) > len(self.X):  # the first rollout, or one longer than `rows` foresaw
+            size = max(self.rows, 2 * len(self.X), self.n + len(X))
+            grown = [np.empty((size,) + a.shape[1:], np.float32) for a in (X, Y)]
+            if self.n:
+                grown[0][:self.n], grown[1][:self.n] = self.X[:self.n], self.Y[:self.n]
+            self.X, self.Y = grown
+            self.Xn = np.empty_like(self.X)
+        self.X[self.n:self.n + len(X)], self.Y[self.n:self.n + len(Y)] = X, Y
+        self.n += len(X)
+
+    def _sum(self, f) -> np.ndarray:
+        buf = np.empty((self._BLOCK + 1, self.X.shape[1]), np.float32)
+        total = np.zeros(self.X.shape[1], np.float32)
+        for a in range(0, self.n, self._BLOCK):
+            k = min(self._BLOCK, self.n - a)
+            buf[0] = total
+            f(self.X[a:a + k], buf[1:k + 1])
+            total = buf[:k + 1].sum(axis=0)
+        return total
+
+    def stats(self) -> ObsStats:
+        """VecNormalize's statistics of the pool (clip 10, epsilon 1e-8, as the shipped agents')."""
+        mean = np.true_divide(self._sum(lambda x, out: np.copyto(out, x)), self.n, dtype=np.float32)
+
+        def squares(x, out):
+            np.subtract(x, mean, out=out)
+            np.multiply(out, out, out=out)
+        var = np.true_divide(self._sum(squares), self.n, dtype=np.float32)
+        return ObsStats(mean.astype(np.float64), var.astype(np.float64), float(self.n), 10.0, 1e-8)
+
+    def normalized(self, stats: ObsStats) -> tuple[np.ndarray, np.ndarray]:
+        """The pool's observations normalised by `stats` (a view of the reused buffer) and its labels."""
+        return stats.normalize(self.X[:self.n], out=self.Xn[:self.n]), self.Y[:self.n]
+
+
 def _fit(model, X: np.ndarray, Y: np.ndarray, stats, epochs: int, seed: int, per_epoch: int | None = None,
-         lr: float = 1e-3, batch: int = 1024) -> float:
+         lr: float = 1e-3, batch: int = 1024, normalized: bool = False) -> float:
     """Least squares of the PPO actor's mean action on (X, Y); returns the final mean squared error. An epoch is a
     pass over all of (X, Y), or (`per_epoch`) that many samples drawn from it, in batches of at most `batch`: the draws
     run through shuffles of the whole pool, one after another, so every sample is drawn before any is drawn again
-    (a shuffle's last batch may be short)."""
+    (a shuffle's last batch may be short). `normalized`: X is already normalised by `stats`."""
     import torch
 
     policy = model.policy
     params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
     opt = torch.optim.Adam(params, lr=lr)
     gen = torch.Generator().manual_seed(seed)
-    Xt = torch.as_tensor(stats.normalize(X))
+    Xt = torch.as_tensor(X if normalized else stats.normalize(X))
     Yt = torch.as_tensor(Y)
     n = Xt.shape[0]
     per_epoch = n if per_epoch is None else min(per_epoch, n)
@@ -201,7 +251,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     import tempfile
 
     work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
-    run.validate_from, run.batch = validate_from, batch
+    run.validate_from, run.batch, run.iterations = validate_from, batch, iterations
     for it in range(iterations):
         run.iteration(it, model, kwargs, work, bar)
     if bar is not None:
@@ -250,8 +300,7 @@ class _Run:
                  card, teacher, baseline):
         self.t, self.seed, self.episodes, self.epochs, self.budget = t, seed, episodes, epochs, budget
         self.validation_episodes, self.card, self.teacher, self.baseline = validation_episodes, card, teacher, baseline
-        self.X_all: list[np.ndarray] = []
-        self.Y_all: list[np.ndarray] = []
+        self.pool: _Pool | None = None
         self.student: Any = None
         self.stats: ObsStats | None = None
         self.history: list[dict] = []
@@ -259,6 +308,7 @@ class _Run:
         #: the first iteration whose student is scored (and may be shipped), and the fit's batch
         self.validate_from = 1
         self.batch = 1024
+        self.iterations = 1
 
     def start(self, kwargs: dict, layers: list[int], iterations: int, progress: bool, teacher: str):
         """The student's SB3 PPO model (its actor is the student) and the progress bar (None: none)."""
@@ -284,17 +334,17 @@ class _Run:
         first = t.train_env_seed(self.seed)
         seeds = [first + (it * episodes + j) % TRAIN_SEED_STRIDE for j in range(episodes)]
         X, Y = _rollout(self.student, self.teacher, ENV_ID, kwargs, t, seeds, self.stats, bar, self.baseline)
-        self.X_all.append(X)
-        self.Y_all.append(Y)
-        Xc, Yc = np.concatenate(self.X_all), np.concatenate(self.Y_all)
-        _say(bar, f"iteration {it + 1}: fitting the student to {len(Yc)} samples")
-        stats = self.stats = ObsStats(Xc.mean(0).astype(np.float64), Xc.var(0).astype(np.float64), float(len(Xc)),
-                                      10.0, 1e-8)
+        if self.pool is None:  # room for every iteration's samples, if each is as long as the first
+            self.pool = _Pool(len(X) * self.iterations)
+        self.pool.add(X, Y)
+        _say(bar, f"iteration {it + 1}: fitting the student to {self.pool.n} samples")
+        stats = self.stats = self.pool.stats()
+        Xc, Yc = self.pool.normalized(stats)
         if self.budget == "pool":
-            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, batch=self.batch)
+            mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, batch=self.batch, normalized=True)
         else:  # one iteration's worth of samples an epoch, and a step that shrinks as the pool grows
             mse = _fit(model, Xc, Yc, stats, self.epochs, self.seed + it, per_epoch=len(Y), lr=1e-3 / np.sqrt(it + 1),
-                       batch=self.batch)
+                       batch=self.batch, normalized=True)
         policy = model.policy
         self.student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))
         if it + 1 < self.validate_from:  # not a candidate: its fit is recorded, not its score
