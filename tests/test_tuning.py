@@ -119,3 +119,30 @@ def test_a_tune_of_some_entries_says_what_it_replaces_and_keeps_the_whole_tunes_
     monkeypatch.setattr(baselines, "tune_task", lambda t, only, **k: {"pid-adaptive": dearer})
     assert cli_main(["tune", "--task", "rolling", "--only", "pid-adaptive", "--out", str(out)]) == 0
     assert "pid-adaptive: kept the existing entry" in capsys.readouterr().out
+
+
+def test_a_raced_grid_keeps_the_sets_cheapest_on_the_first_plants_with_their_whole_means(monkeypatch):
+    """`search.raced_costs`: every set scored on the first quarter of the plants, the cheapest quarter there (at least
+    ten) on the rest; a kept set's mean is `mean_costs`' number exactly (the same episodes in the plants' order), the
+    others inf. A grid below `RACE_MIN_SETS`, or fewer plants than `RACE_MIN_PLANTS`, is scored whole."""
+    from millvib_env.tuning import search
+
+    rng = np.random.default_rng(0)
+    table = rng.random((120, 12)) + np.linspace(0.0, 1.0, 120)[:, None]  # cost of set i on plant j
+    calls = []
+
+    def fake(sets, seeds, **kwargs):
+        rows = [int(r[0]) for r in np.atleast_2d(sets)]
+        calls.append((len(rows), len(seeds)))
+        return table[np.ix_(rows, [int(s) for s in seeds])]
+    monkeypatch.setattr(search, "episode_costs", fake)
+    sets = np.arange(120.0)[:, None]
+    out = search.raced_costs(sets, list(range(12)), task=None)
+    assert calls == [(120, 3), (30, 9)]  # a quarter of the plants, then a quarter of the sets on the rest
+    kept = np.isfinite(out)
+    assert kept.sum() == 30 and np.array_equal(np.flatnonzero(kept), np.sort(np.argsort(table[:, :3].mean(1))[:30]))
+    assert np.array_equal(out[kept], table[kept].mean(axis=1))
+    calls.clear()
+    assert np.array_equal(search.raced_costs(sets[:40], list(range(12)), task=None), table[:40].mean(axis=1))
+    assert np.array_equal(search.raced_costs(sets, [0, 1, 2], task=None), table[:, :3].mean(axis=1))
+    assert calls == [(40, 12), (120, 3)]
