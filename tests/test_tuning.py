@@ -122,7 +122,7 @@ def test_a_tune_of_some_entries_says_what_it_replaces_and_keeps_the_whole_tunes_
 
 
 def test_a_raced_grid_keeps_the_sets_cheapest_on_the_first_plants_with_their_whole_means(monkeypatch):
-    """`search.raced_costs`: every set scored on the first quarter of the plants, the cheapest quarter there (at least
+    """`search.raced_costs`: every set scored on the first quarter of the plants, the cheapest third there (at least
     ten) on the rest; a kept set's mean is `mean_costs`' number exactly (the same episodes in the plants' order), the
     others inf. A grid below `RACE_MIN_SETS`, or fewer plants than `RACE_MIN_PLANTS`, is scored whole."""
     from millvib_env.tuning import search
@@ -138,9 +138,9 @@ def test_a_raced_grid_keeps_the_sets_cheapest_on_the_first_plants_with_their_who
     monkeypatch.setattr(search, "episode_costs", fake)
     sets = np.arange(120.0)[:, None]
     out = search.raced_costs(sets, list(range(12)), task=None)
-    assert calls == [(120, 3), (30, 9)]  # a quarter of the plants, then a quarter of the sets on the rest
+    assert calls == [(120, 3), (40, 9)]  # a quarter of the plants, then a third of the sets on the rest
     kept = np.isfinite(out)
-    assert kept.sum() == 30 and np.array_equal(np.flatnonzero(kept), np.sort(np.argsort(table[:, :3].mean(1))[:30]))
+    assert kept.sum() == 40 and np.array_equal(np.flatnonzero(kept), np.sort(np.argsort(table[:, :3].mean(1))[:40]))
     assert np.array_equal(out[kept], table[kept].mean(axis=1))
     calls.clear()
     assert np.array_equal(search.raced_costs(sets[:40], list(range(12)), task=None), table[:40].mean(axis=1))

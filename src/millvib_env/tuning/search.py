@@ -1,9 +1,9 @@
 """Offline PID tuning for the baselines: grid search over log gains, then Nelder-Mead.
 
-A grid of 50 gain sets or more is raced (`raced_costs`): every set on a quarter of the plants, the cheapest quarter
-of them on all the plants. On every grid `millvib tune` searches on rolling and startup (measured:
-docs/performance.md) the race kept the whole grid's cheapest set, so the search ends where the whole grid's would,
-at about half of the grid's episodes.
+A grid of 50 gain sets or more is raced (`raced_costs`): every set on a quarter of the plants, the cheapest third
+of them on all the plants. On every grid `millvib tune` searches on the four tasks (measured: docs/performance.md)
+the race kept the whole grid's cheapest set, so the search ends where the whole grid's would, at about half of the
+grid's episodes.
 
 The objective is the benchmark's mean episode cost (severity / 4.5 mm/s + tracking RMS / 10 um)
 over a fixed set of plants (the task's tuning seeds, disjoint from its held-out seeds), in the
@@ -110,13 +110,13 @@ def episode_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task
 
 #: racing a search's starting grid (`raced_costs`): at least this many gain sets and this many plants, the share of
 #: the plants every set is scored on first, and the share of the sets (at least `RACE_KEEP_MIN`) scored on the rest
-RACE_MIN_SETS, RACE_MIN_PLANTS, RACE_FIRST, RACE_KEEP, RACE_KEEP_MIN = 50, 4, 0.25, 0.25, 10
+RACE_MIN_SETS, RACE_MIN_PLANTS, RACE_FIRST, RACE_KEEP, RACE_KEEP_MIN = 50, 4, 0.25, 1 / 3, 10
 
 
 def raced_costs(log_gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task, params: dict | None = None,
                 version: str = DEFAULT_VERSION) -> np.ndarray:
     """The mean cost over `seeds` of the gain sets a race keeps, inf for the others: every set is scored on the first
-    quarter of the plants (`RACE_FIRST`, at least 2), and the cheapest quarter of the sets there (`RACE_KEEP`, at least
+    quarter of the plants (`RACE_FIRST`, at least 2), and the cheapest third of the sets there (`RACE_KEEP`, at least
     `RACE_KEEP_MIN`) on the rest too (successive halving in one round, as Hyperband's brackets race configurations on
     a small budget first). A kept set's mean is `mean_costs`' number to the bit: the same episodes, averaged in the
     plants' order. A small grid, or few plants, is scored whole."""
