@@ -223,6 +223,21 @@ def test_a_task_name_is_looked_up_only_where_it_enters():
     assert found <= TASK_LOOKUPS, sorted(found - TASK_LOOKUPS)
 
 
+def test_every_shipped_card_names_its_agent_and_the_folder_its_command_saves_to():
+    """A card's name is its agent's folder's, and a command that names a save folder (`--save-dir`) names the one
+    the card lies in, so that rerunning a card's command writes that seed again (an agent trained elsewhere and
+    copied in keeps neither the name nor the folder of the place it was trained)."""
+    import json
+
+    for card_path in sorted((ROOT / "agents").glob("*/seed-*/card.json")):
+        card = json.loads(card_path.read_text())
+        folder = card_path.parent.relative_to(ROOT).as_posix()
+        assert card["name"] == card_path.parent.parent.name, (folder, card["name"])
+        words = (card.get("command") or "").split()  # a note may hold quotes; a save folder holds no space
+        if "--save-dir" in words:
+            assert words[words.index("--save-dir") + 1].rstrip("/") == folder, (folder, card["command"])
+
+
 def test_every_shipped_card_alone_rebuilds_its_agents_environment():
     """The plain SB3 recipe builds the environment from the card alone (``gym.make(card["env_id"],
     **card["env_kwargs"])``): for every shipped agent and seed it is the one `load_controller` runs, task included
