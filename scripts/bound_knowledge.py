@@ -12,7 +12,8 @@ timing, force-model and noise errors, the students' own preview). The last such 
 students do, and the plant and its state exactly: the room it shows above `pid-pf-preview` is what the preview set's
 information leaves to a controller that could identify the plant and its state perfectly. It is a certainty-
 equivalent controller (it takes the gauge's forecast as exact), not a bound: the table says where a student beats
-it. The per-plant costs are written beside the benchmark (bound-knowledge.json); a rerun reuses them.
+it. The per-plant costs are written beside the benchmark (bound-knowledge.json) with the bound's own; a rerun
+reuses them where the saved bound's costs are the benchmark's.
 """
 
 from __future__ import annotations
@@ -95,13 +96,21 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"{BOUND} costs {check} where the saved benchmark has {bound[:2].tolist()}: rerun it")
     saved_path = folder / "bound-knowledge.json"
     saved = json.loads(saved_path.read_text()) if saved_path.exists() else {}
+    # the saved costs are reused only where they were made beside this benchmark's bound (the same per-plant
+    # costs): a change to the bound or its plants makes every variant again
+    bound_now = {str(s): float(c) for s, c in zip(seeds, bound)}
+    if any(saved.get("bound", {}).get(k) != c for k, c in bound_now.items()):
+        if saved:
+            print("the saved bound's costs are not this benchmark's: every variant is run again", file=sys.stderr)
+        saved = {}
     kept: dict = {label: saved.get(label, {}) for label in VARIANTS}
     for label, variant in VARIANTS.items():
         todo = [s for s in seeds if str(s) not in kept[label]]
         if todo:
             print(f"{label}: {len(todo)} plants", file=sys.stderr, flush=True)
             kept[label].update({str(s): c for s, c in _run(args.task, todo, variant, args.jobs).items()})
-    write_text_atomic(saved_path, json.dumps({"task": args.task, **kept}, indent=1) + "\n")
+    bound_saved = {**saved.get("bound", {}), **bound_now}
+    write_text_atomic(saved_path, json.dumps({"task": args.task, "bound": bound_saved, **kept}, indent=1) + "\n")
     learned = [n for n, c in result["controllers"].items() if c.get("same_information", {}).get("classical") == FF
                and not n.startswith("dagger-residual")]
     students = {n: [np.array([cost[n][(a, s)] for s in seeds]) for a in sorted({a for a, _ in cost[n]})]

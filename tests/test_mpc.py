@@ -82,6 +82,31 @@ def test_the_condensed_qp_is_the_model_stepped():
         np.testing.assert_allclose(g, num, rtol=1e-6, atol=1e-9 * np.max(np.abs(num)))
 
 
+@pytest.mark.parametrize("q_i", [0.0, 0.1])
+@pytest.mark.parametrize("task", ["rolling", "varied"])
+def test_the_horizons_tail_is_the_one_chosen_on_every_plant(task, q_i):
+    """The tail P is the one `MPCSettings.tail` names on every plant, never a fallback. "riccati": P solves the
+    discrete Riccati equation of the stage weights on the model; with no weight on the integral xi (q_i 0, every
+    shipped bound), on the plant's states, xi's row and column zero (xi feeds nothing back). Solved on the whole
+    model, that equation has xi's eigenvalue on the unit circle: the tail fell back to Q on most plants and not on
+    others. "stage" (the default): Q."""
+    from millvib_env.control.mpc import U_SCALE_V
+    from millvib_env.tuning.search import plants_of
+
+    st = MPCSettings(horizon=4, q_x=10.0, q_v=0.3, q_i=q_i, r=1e-3)
+    ric = MPCSettings(horizon=4, q_x=10.0, q_v=0.3, q_i=q_i, r=1e-3, tail="riccati")
+    for params in plants_of([1, 2, 3, 4], get_task(task)):
+        assert np.array_equal(mpc_model(params, st, 5e-4, 0.0).P, mpc_model(params, st, 5e-4, 0.0).Q)
+        m = mpc_model(params, ric, 5e-4, 0.0)
+        k = len(m.keep) + (q_i > 0)
+        A, B, Q, P = m.Ad[:k, :k], m.Bd[:k, None], m.Q[:k, :k], m.P[:k, :k]
+        R = ric.r / U_SCALE_V ** 2
+        riccati = A.T @ P @ A - P + Q - A.T @ P @ B @ np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+        assert np.max(np.abs(riccati)) <= 1e-8 * np.max(np.abs(P))
+        assert not np.allclose(m.P, m.Q)
+        assert np.all(m.P[k:] == 0.0) and np.all(m.P[:, k:] == 0.0)
+
+
 def test_a_model_is_built_with_blas_on_one_thread(monkeypatch):
     """BLAS's threads, woken by the condensed QP's products at every build, spun on the other core (a quarter of
     a benchmark's CPU time); the build runs with one, and the limit is lifted after it."""
@@ -567,7 +592,8 @@ def test_what_the_preview_bound_knows_ahead_can_be_withdrawn_course_by_course():
 @pytest.mark.parametrize("kw, what", [({"ahead": ("force",)}, "MPCSettings.ahead"),
                                       ({"ahead": "ripple"}, "MPCSettings.ahead"),
                                       ({"ahead": ("ripple", "ripple")}, "MPCSettings.ahead"),
-                                      ({"force_steps": "exact"}, "MPCSettings.force_steps")])
+                                      ({"force_steps": "exact"}, "MPCSettings.force_steps"),
+                                      ({"tail": "dare"}, "MPCSettings.tail")])
 def test_what_the_bound_knows_ahead_refuses_a_name_it_does_not_know(kw, what):
     with pytest.raises(ValueError, match=re.escape(what)):
         MPCSettings(**kw)
