@@ -159,6 +159,23 @@ def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_p
     assert not found, found
 
 
+def test_no_module_of_the_package_passes_600_lines_and_no_function_80():
+    """The house's sizes: a module a reader takes in at one sitting, a function on two screens (the plant's
+    `plant_rhs`, the kernel's hot path, included: docs/performance.md says why it stays one function)."""
+    import ast
+
+    long = []
+    for path in sorted((ROOT / "src").rglob("*.py")):
+        rel = path.relative_to(ROOT).as_posix()
+        lines = path.read_text().count("\n")
+        if lines > 600:
+            long.append(f"{rel}: {lines} lines")
+        for fn in ast.walk(parsed(path)):
+            if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)) and fn.end_lineno - fn.lineno + 1 > 80:
+                long.append(f"{rel}:{fn.lineno} {fn.name}: {fn.end_lineno - fn.lineno + 1} lines")
+    assert not long, long
+
+
 def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_are_the_same_modules():
     """docs/architecture.md's floors: evaluation/ imports neither training/ nor tuning/, and those two never
     import each other (each uses evaluation); control/ imports none of the three, envs/ nothing of control/ either,

@@ -266,21 +266,15 @@ def plant_rhs(t, y, p, c, dy, aux):
         dy[IXS] = y[IVS]
         dy[IVS] = wn * (wn * (p[D_KXV] * u - xs) - 2.0 * p[P_VZETA] * y[IVS])
         xv = min(max(xs, -p[P_XVMAX]), p[P_XVMAX])
-        if xv >= 0.0:
-            dp = ps_t - pL
-        else:
-            dp = pL - p[P_PT]
-        ql = p[D_KQX] * xv * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
+        opening, kq = xv, p[D_KQX]  # the flow's gain per metre of spool
     else:  # the paper's ideal valve: xv = Ksv Kp1 u, at once (bit for bit the paper's loop when xv_max = inf)
         dy[IXS] = 0.0
         dy[IVS] = 0.0
-        uv = min(max(u, -p[D_ULIM]), p[D_ULIM])
-        xv = p[D_KXV] * uv
-        if uv >= 0.0:
-            dp = ps_t - pL
-        else:
-            dp = pL - p[P_PT]
-        ql = p[D_KQ] * uv * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
+        opening = min(max(u, -p[D_ULIM]), p[D_ULIM])
+        xv = p[D_KXV] * opening
+        kq = p[D_KQ]  # per volt of command
+    dp = ps_t - pL if opening >= 0.0 else pL - p[P_PT]  # towards the supply when opening, the tank when closing
+    ql = kq * opening * dp / math.sqrt(math.sqrt(dp * dp + p[D_DPR2]))
 
     # continuity (4): V = Ap (L1 + x)
     c1, ct = damping_and_leakage(t, p, c)
