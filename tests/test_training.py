@@ -237,6 +237,24 @@ def test_default_benchmark_covers_the_shipped_agents():
     assert len(agents) >= 2, "the PPO and SAC gain schedulers are shipped under agents/"
 
 
+def test_a_retired_agent_is_left_out_of_the_default_lineup_and_runs_when_named():
+    """A card's ``retired`` (why: superseded) keeps the agent loadable by name, for earlier results, and out of a
+    benchmark that names no controllers, and out of the 'answer' group; every other shipped agent of the task and
+    version stays in."""
+    from millvib_env.control.agents import agent_retired
+    from millvib_env.evaluation.benchmark.lineup import answer_group, default_lineup
+
+    task = get_task("rolling")
+    retired = [a for a in list_agents(task, "v1") if agent_retired(a)]
+    assert retired, "the earlier residual students are shipped retired"
+    lineup = default_lineup("v1", task)
+    assert not set(retired) & set(lineup) and not set(retired) & set(answer_group("v1", task))
+    assert set(list_agents(task, "v1")) - set(retired) <= set(lineup)
+    for name in retired:
+        assert "superseded" in agent_retired(name)
+        assert load_controller(name).name == name
+
+
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:rich is experimental")  # SB3's progress bar (tqdm.rich) says so at every start
 def test_train_on_a_task_uses_its_seeds_and_records_it(tmp_path, capsys):

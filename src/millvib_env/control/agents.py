@@ -30,7 +30,7 @@ from millvib_env.threads import one_torch_thread, one_xla_thread
 
 __all__ = ["AgentPolicy", "ALGOS", "BACKENDS", "Learner", "learner", "algo_class", "resolved_backend",
            "deterministic_actor", "agent_env_kwargs", "AGENT_ENV_KEYS", "SEED_FOLDER", "agent_seed_folders",
-           "list_agents", "agent_folder", "agent_seeds"]
+           "list_agents", "agent_retired", "agent_folder", "agent_seeds"]
 
 
 #: the algorithms an agent may be trained with (`millvib train --algo`)
@@ -131,7 +131,7 @@ def agent_env_kwargs(raw, task: Task, version: str) -> dict:
 
 #: the card's keys the project reads, with the type each must have
 CARD_TYPES = {"env_id": str, "algo": str, "name": str, "task": str, "backend": str, "normalize": str,
-              "env_kwargs": dict, "seed": int}
+              "env_kwargs": dict, "seed": int, "retired": str}
 #: the largest card read (a card is a few kB)
 MAX_CARD_BYTES = 2**20
 
@@ -450,10 +450,18 @@ def _agent_version(folder: Path) -> str:
     return env_id.rsplit("-", 1)[-1]
 
 
+def agent_retired(name: str) -> str | None:
+    """Why a shipped agent is retired (its card's ``retired``: superseded, kept so that earlier results can be
+    repeated; loaded by name, left out of a benchmark's default lineup), or None."""
+    value = _agent_card_key(agent_folder(name), "retired", "")
+    return value or None
+
+
 @takes_task()
-def list_agents(task: str | Task | None = None, version: str | None = None) -> list[str]:
+def list_agents(task: str | Task | None = None, version: str | None = None, retired: bool = True) -> list[str]:
     """Shipped agents (folders under agents/ with a card, or with seed-<s>/ folders that have one),
-    optionally only those trained on `task` and those trained in environment version `version`."""
+    optionally only those trained on `task`, those trained in environment version `version`, and not the retired
+    ones (`retired=False`: `agent_retired`)."""
     assert task is None or isinstance(task, Task)  # a name was resolved by @takes_task
     wanted = None if task is None else task.name
     root = agents_dir()
@@ -465,6 +473,8 @@ def list_agents(task: str | Task | None = None, version: str | None = None) -> l
             if wanted is not None and _agent_task(p) != wanted:
                 continue
             if version is not None and _agent_version(p) != version:
+                continue
+            if not retired and _agent_card_key(p, "retired", ""):
                 continue
             names.append(p.name)
     return names

@@ -102,6 +102,12 @@ def _own_controllers(controllers: Any, version: str, task: Task) -> tuple[list[s
     return _expand_groups(names, version, task), own
 
 
+def default_lineup(version: str, task: Task) -> list[str]:
+    """The controllers of a benchmark that names none: every baseline of `version` and every agent trained on
+    `task` in it, but the retired ones (`control.agents.agent_retired`: named, they run)."""
+    return baseline_names(version) + list_agents(task, version, retired=False)
+
+
 def answer_group(version: str, task: Task) -> list[str]:
     """The group 'answer', the mission's question in one table: the paper's fixed-gain PID, the reference, and in
     v1 the classical controller of the preview's information (`ANSWER_CLASSICAL`), the shipped students trained on
@@ -110,7 +116,7 @@ def answer_group(version: str, task: Task) -> list[str]:
     have = baseline_names(version)
     if ANSWER_CLASSICAL not in have:
         return ["pid-paper", REFERENCE]
-    learned = [a for a in list_agents(task, version) if agent_base(a) == ANSWER_CLASSICAL]
+    learned = [a for a in list_agents(task, version, retired=False) if agent_base(a) == ANSWER_CLASSICAL]
     return ["pid-paper", REFERENCE, ANSWER_CLASSICAL, *learned, ANSWER_BOUND]
 
 

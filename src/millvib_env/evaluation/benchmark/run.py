@@ -7,14 +7,14 @@ import time
 from typing import Sequence
 
 from millvib_env._checks import shown
-from millvib_env.control.agents import list_agents
 from millvib_env.control.base import Controller
 from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS
 from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.verdict import information_verdict
 from millvib_env.evaluation.benchmark.jobs import _collect_records, _processes, _records_of, _settle_auto
-from millvib_env.evaluation.benchmark.lineup import _load_units, _own_controllers, _preview_kwargs, information_of
+from millvib_env.evaluation.benchmark.lineup import (_load_units, _own_controllers, _preview_kwargs, default_lineup,
+                                                     information_of)
 from millvib_env.evaluation.benchmark.protocol import (DEFAULT_EPISODES, DEFAULT_PREVIEW_GAUGE, FULL_EPISODES,
                                                        PREVIEW_GAUGES, _header, summarize)
 from millvib_env.evaluation.benchmark.comparison import _Early, _compare, room
@@ -26,7 +26,8 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
                   scenarios: bool | None = None, progress: bool = True, ray: str | None = None,
                   all_seeds: bool = False, reference: str | None = None, jobs: int | str = 1,
                   preview: str = DEFAULT_PREVIEW_GAUGE) -> dict:
-    """Evaluate `controllers` (default: every baseline and every agent trained on the task) on
+    """Evaluate `controllers` (default: every baseline and every agent trained on the task but the retired ones,
+    `control.agents.agent_retired`) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
     ship (`all_seeds`, the full protocol; its default is FULL_EPISODES plants, DEFAULT_EPISODES
@@ -54,7 +55,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     if episodes is None:
         episodes = FULL_EPISODES if all_seeds else DEFAULT_EPISODES
     names, own = _own_controllers(controllers, env_version, t) if controllers is not None else \
-        (baseline_names(env_version) + list_agents(t.name, env_version), {})
+        (default_lineup(env_version, t), {})
     if own and ray is not None:
         raise ValueError(f"ray = {shown(ray)} is invalid with a Controller object of your own ({', '.join(own)}): "
                          "it runs in this process; give ray=None")
