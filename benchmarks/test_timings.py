@@ -327,7 +327,7 @@ def test_env_steps(benchmark, env_id):
 @pytest.mark.parametrize("name", ["mpc-oracle", "mpc-preview"])
 def test_mpc_samples(benchmark, name):
     """50 loop samples of an MPC bound's commands for 40 plants of the rolling task (its QPs and predictions)."""
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     ctrl = load_controller(name, "rolling", version="v1")
     venv = _batch(ctrl.env_id, 40)
@@ -346,7 +346,7 @@ def test_mpc_samples(benchmark, name):
 @pytest.mark.benchmark(group="pieces")
 def test_student_actions(benchmark):
     """The rolling student's actions for 40 observations, 100 times (its network on one thread)."""
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     ctrl = load_controller("dagger-on-pid-pf-preview-rolling", "rolling")
     obs = np.zeros((40, *ctrl.policy.observation_space.shape), dtype=np.float32)
@@ -361,7 +361,7 @@ def test_student_actions(benchmark):
 @pytest.mark.benchmark(group="pieces")
 def test_normalize_a_pool(benchmark):
     """A distillation's pool of 650 000 observations of 73 channels normalised (`ObsStats.normalize`)."""
-    from millvib_env.control.normalization import ObsStats
+    from millvib_env.catalog.normalization import ObsStats
 
     rng = np.random.default_rng(0)
     X = rng.normal(size=(650000, 73)).astype(np.float32)
@@ -420,8 +420,8 @@ def test_simulate_the_papers_cases(benchmark):
 
 
 def _rolling_rows() -> list[str]:
-    from millvib_env.control.agents import list_agents
-    from millvib_env.control.registry import baseline_names
+    from millvib_env.catalog.agents import list_agents
+    from millvib_env.catalog.registry import baseline_names
 
     return baseline_names("v1") + list_agents("rolling", "v1")
 
@@ -431,7 +431,7 @@ def _rolling_rows() -> list[str]:
 def test_benchmark_row(benchmark, name):
     """Where a benchmark's time goes: one controller of the rolling task's default set on 8 held-out plants, in a
     warm process (an agent on its lowest training seed)."""
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.evaluation.evaluate import run_episodes
     from millvib_env.tasks import get_task
 

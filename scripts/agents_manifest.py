@@ -2,7 +2,7 @@
 
     python scripts/agents_manifest.py
 """
-from millvib_env.control.manifest import write_manifest
+from millvib_env.catalog.manifest import write_manifest
 
 if __name__ == "__main__":
     print(f"wrote {write_manifest()}")

@@ -8,7 +8,7 @@ machine), and the cards' notes.
 import json
 
 from millvib_env._paths import agents_dir
-from millvib_env.control.agents import agent_seed_folders, list_agents
+from millvib_env.catalog.agents import agent_seed_folders, list_agents
 
 
 def _shipped(selected: dict) -> str:

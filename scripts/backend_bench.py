@@ -22,7 +22,7 @@ CONFIG = {"sac": "configs/agents/pf/sac.yml", "ppo": "configs/agents/pf/ppo.yml"
 RUN = """
 import sys, time
 algo, backend, config, steps = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
-from millvib_env.control.agents import algo_class
+from millvib_env.catalog.agents import algo_class
 from millvib_env.training.train import jit_noise_key_split, resolve_named_gains
 from millvib_env.training.hyperparams import load_hyperparams
 from millvib_env.envs.vec_env import make_vec_env

@@ -47,7 +47,7 @@ def _costs(task: str, seeds: list[int], ahead: tuple, force_steps: str) -> list[
     """The bound with settings (`ahead`, `force_steps`) on `seeds`, in an environment that measures the preview."""
     from dataclasses import replace
 
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.control.mpc import MPCPolicy
     from millvib_env.evaluation.evaluate import run_episodes
     from millvib_env.tasks import get_task

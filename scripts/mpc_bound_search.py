@@ -13,7 +13,7 @@ import json
 
 import numpy as np
 
-from millvib_env.control.factory import control_entry, load_controller
+from millvib_env.catalog.factory import control_entry, load_controller
 from millvib_env.control.mpc import MPCPolicy, MPCSettings
 from millvib_env.evaluation.evaluate import run_episodes
 from millvib_env.evaluation.stats import cvar

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._paths import agents_dir, save_figure
-from millvib_env.control.agents import agent_seed_folders, list_agents
-from millvib_env.control.manifest import EVAL_CURVE
+from millvib_env.catalog.agents import agent_seed_folders, list_agents
+from millvib_env.catalog.manifest import EVAL_CURVE
 
 
 def run_folder(runs: Path, card: dict) -> Path:

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._paths import write_text_atomic
-from millvib_env.control.factory import load_controller
-from millvib_env.control.information import from_env_kwargs
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.information import from_env_kwargs
 from millvib_env.evaluation.evaluate import run_episodes
 from millvib_env.tasks import get_task
 

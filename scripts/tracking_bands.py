@@ -13,7 +13,7 @@ import argparse
 import numpy as np
 from scipy.signal import welch
 
-from millvib_env.control.factory import load_controller
+from millvib_env.catalog.factory import load_controller
 from millvib_env.tasks import get_task
 from millvib_env.evaluation.evaluate import trace_episode
 

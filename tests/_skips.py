@@ -6,6 +6,6 @@ import pytest
 
 def skip_without_sbx() -> None:
     """Skip where sbx is not installed, without importing it: JAX is imported by
-    `control.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
+    `catalog.agents.algo_class`, which first points its compilation cache at ours (`_jax_cache`)."""
     if importlib.util.find_spec("sbx") is None:
         pytest.skip("sbx is not installed")

@@ -262,7 +262,7 @@ def test_hyperparameters_that_change_the_episode_are_refused_before_training(tmp
 @pytest.mark.parametrize("algo, backend, what", [("a2c", "auto", "algo = 'a2c'"), ("PPO", "jax", "backend = 'jax'"),
                                                 ("recurrentppo", "sbx", "for backend 'sbx'")])
 def test_an_algorithm_or_backend_there_is_no_learner_for_is_refused_before_training(tmp_path, algo, backend, what):
-    """`train` turns its algorithm's name into a learner once (`control.agents.learner`); a name or library it has
+    """`train` turns its algorithm's name into a learner once (`catalog.agents.learner`); a name or library it has
     none for is a ValueError of one line naming it, before a run folder is made."""
     from millvib_env.training.train import train
 
@@ -315,12 +315,12 @@ def _api_calls():
     from millvib_env.analysis.dynamics import classify_motion
     from millvib_env.analysis.linear import (critical_kp, jacobian, linearize, operating_point, spectral_abscissa,
                                              stability_map)
-    from millvib_env.control.agents import agent_seeds
-    from millvib_env.control.tuned import load_control_config
+    from millvib_env.catalog.agents import agent_seeds
+    from millvib_env.catalog.tuned import load_control_config
     from millvib_env.envs.scenarios import get_scenario
     from millvib_env.evaluation.stats import cvar, iqm, worst
     from millvib_env.control.adaptive import EstimatorSettings
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.control.lqr import LQRWeights, lqr_gains
     from millvib_env.envs.vec_env import make_vec_env
     from millvib_env.params import load_preset, parse_overrides
@@ -429,7 +429,7 @@ NASTY = ["nan", ".nan", ".inf", "-.inf", "-1", "0", "-0.0", "1e400", "-1e308", "
 def _loaders():
     """file (under configs/) -> the loader that reads it, called as the commands call it."""
     from millvib_env import load_preset
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.envs.config import load_env_config
 
     return {"plant/paper.yaml": lambda: load_preset("paper"),
@@ -536,7 +536,7 @@ def test_the_command_lines_parser_shows_the_modules_docstrings_without_loading_t
     import subprocess
     import sys
 
-    import millvib_env.control.export as export
+    import millvib_env.catalog.export as export
     import millvib_env.training.distill as distill
     import millvib_env.tuning.baselines as baselines
     from millvib_env.cli import _module_doc
@@ -549,7 +549,7 @@ def test_the_command_lines_parser_shows_the_modules_docstrings_without_loading_t
             "from millvib_env.cli import build_parser\n"
             "build_parser()\n"
             "print(sorted(m for m in ('millvib_env.tuning.baselines', 'millvib_env.training.distill', "
-            "'millvib_env.control.export', 'millvib_env.control.factory') if m in sys.modules))\n")
+            "'millvib_env.catalog.export', 'millvib_env.catalog.factory') if m in sys.modules))\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.stdout.strip() == "[]", run.stderr
 
@@ -569,7 +569,7 @@ def test_a_set_point_outside_the_cylinders_stroke_is_refused_in_one_line(capsys)
 
 def test_complex_observation_statistics_are_refused_naming_the_field(tmp_path):
     """A vecnormalize.npz whose mean is complex was cast to its real part in silence."""
-    from millvib_env.control.normalization import load_obs_stats
+    from millvib_env.catalog.normalization import load_obs_stats
 
     path = tmp_path / "vecnormalize.npz"
     np.savez(path, mean=np.array([0.5 + 1j, 0.0]), var=np.ones(2), count=10.0, clip_obs=10.0, epsilon=1e-8)
@@ -585,7 +585,7 @@ def test_a_card_whose_algo_does_not_fit_its_model_is_refused_naming_both(tmp_pat
     import shutil
     from pathlib import Path
 
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
 
     src = Path(__file__).resolve().parents[1] / "agents" / "ppo-gain-pf-rolling" / "seed-0"
     folder = tmp_path / "agent"

@@ -5,7 +5,7 @@ import pytest
 from millvib_env import MillParams
 from millvib_env.analysis.linear import linearize
 from millvib_env.control.lqr import LQRWeights, lqr_design
-from millvib_env.control.factory import control_entry, load_controller
+from millvib_env.catalog.factory import control_entry, load_controller
 from millvib_env.plant.kernel import rhs_vector
 from millvib_env.plant.model import IPL, IV, IX, drive_vector, pack
 from millvib_env.params import PIDGains
@@ -166,7 +166,7 @@ def test_the_adaptive_pids_gains_for_every_environment_at_once_are_each_plants_o
 def test_the_adaptive_estimator_runs_at_the_envs_sample_rate_or_refuses():
     import gymnasium as gym
 
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.envs.config import load_env_config
 
     cfg = load_env_config("rolling", sample_rate_hz=20000)
@@ -200,12 +200,12 @@ def test_the_controller_groups_expand_to_their_members_once():
 
 
 def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tmp_path, monkeypatch):
-    """docs/maintainers.md's recipe: a registry entry (`control.registry.Baseline.fixed`) and the gains in the task's
+    """docs/maintainers.md's recipe: a registry entry (`catalog.registry.Baseline.fixed`) and the gains in the task's
     control config are all a new fixed-gain baseline needs to load and run by name, and to be named as gains."""
     import shutil
 
     from millvib_env._paths import config_dir
-    from millvib_env.control import registry
+    from millvib_env.catalog import registry
 
     root = tmp_path / "configs"
     shutil.copytree(config_dir(), root)
@@ -218,7 +218,7 @@ def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tm
     assert ctrl.env_id == "MillVib-GainSchedule-v1"
     recs = run_episodes(ctrl, [20_000])
     assert np.isfinite(recs[0]["cost"])
-    from millvib_env.control.named import resolve_named_gains
+    from millvib_env.catalog.named import resolve_named_gains
 
     assert resolve_named_gains({"actions": {"residual_gains": "pid-mine"}}, "startup", "v1")["actions"] == {
         "residual_gains": [2.0e5, 1.0e6, 100.0, 1.0e-4]}
@@ -227,7 +227,7 @@ def test_a_new_fixed_gain_baseline_is_one_registry_entry_and_its_config_entry(tm
 def test_the_env_layer_never_reads_the_control_configs(tmp_path, monkeypatch):
     """envs/ imports nothing of the control layer, the training layer or the tasks (a `Task` carries its env config,
     so tasks.py stands above envs/), and runs with configs/control/ gone: the tuned gains reach it as numbers,
-    resolved above it (control.named)."""
+    resolved above it (catalog.named)."""
     import ast
     import shutil
     from pathlib import Path
@@ -329,7 +329,7 @@ def test_the_benchmarks_roles_are_fields_of_the_registry_entries_and_consistent(
     processes for a QP every sample) is declared on its registry entry; the tables are read from there. A deployable
     classical controller reads no oracle's information, the reference is one of them and the only one, and a slow
     baseline commands the valve of the sampled loop."""
-    from millvib_env.control.registry import REFERENCE, REGISTRY
+    from millvib_env.catalog.registry import REFERENCE, REGISTRY
     from millvib_env.evaluation.benchmark import COMPARED_WITH, DEPLOYABLE_CLASSICAL, ROOM_BOUNDS, SLOW_BASELINES
 
     assert [n for n, b in REGISTRY.items() if b.reference] == [REFERENCE]

@@ -38,7 +38,7 @@ def test_the_plain_sb3_recipe_runs_as_written_and_gives_the_benchmarks_episode(m
     # but the environment, gives the same episode as load_controller in the benchmark's loop
     import numpy as np
 
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.evaluation.evaluate import run_episodes
 
     text = (ROOT / "agents" / "README.md").read_text()
@@ -176,41 +176,41 @@ def test_no_module_of_the_package_passes_600_lines_and_no_function_80():
     assert not long, long
 
 
-def test_evaluation_tuning_and_training_import_downward_and_the_earlier_names_are_the_same_modules():
+def test_every_floor_imports_downward():
     """docs/architecture.md's floors: evaluation/ imports neither training/ nor tuning/, and those two never
-    import each other (each uses evaluation); control/ imports none of the three, envs/ nothing of control/ either,
-    plant/ nothing above it; `millvib_env.training.benchmark` and the other earlier names are the
-    moved modules themselves (one object: a monkeypatch through either name is seen through both)."""
+    import each other (each uses evaluation); the catalog (catalog/, names into objects) imports none of the three,
+    the algorithms (control/) nothing of the catalog either, envs/ nothing of control/ or the catalog, plant/
+    nothing above it. A name that moved from control/ to the catalog, imported from control/ as before,
+    is refused with where it went."""
     import ast
-    import importlib
     from pathlib import Path
 
     import millvib_env
+    import millvib_env.catalog
+    import millvib_env.control
 
     root = Path(millvib_env.__file__).parent
-    shims = {"benchmark": "evaluation.benchmark", "evaluate": "evaluation.evaluate", "stats": "evaluation.stats",
-             "sweep": "evaluation.sweep", "tuning": "tuning.search", "tune_task": "tuning.baselines"}
     upper = ("millvib_env.evaluation", "millvib_env.training", "millvib_env.tuning")
     forbidden = {"evaluation": ("millvib_env.training", "millvib_env.tuning"), "tuning": ("millvib_env.training",),
-                 "training": ("millvib_env.tuning",), "control": upper, "envs": upper + ("millvib_env.control",),
-                 "plant": upper + ("millvib_env.control", "millvib_env.envs")}
+                 "training": ("millvib_env.tuning",), "catalog": upper, "control": upper + ("millvib_env.catalog",),
+                 "envs": upper + ("millvib_env.control", "millvib_env.catalog"),
+                 "plant": upper + ("millvib_env.control", "millvib_env.catalog", "millvib_env.envs")}
     for folder, banned in forbidden.items():
         for path in (root / folder).rglob("*.py"):
-            if folder == "training" and path.stem in shims:
-                continue
             for node in ast.walk(parsed(path)):
                 names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
                     [node.module or ""] if isinstance(node, ast.ImportFrom) else []
                 assert not [n for n in names if n.startswith(banned)], (path, names)
-    for old, new in shims.items():
-        assert importlib.import_module(f"millvib_env.training.{old}") is importlib.import_module(f"millvib_env.{new}")
+    with pytest.raises(ImportError, match="from millvib_env.catalog import load_controller"):
+        from millvib_env.control import load_controller  # noqa: F401
+    assert callable(millvib_env.catalog.load_controller) and millvib_env.control.Controller
 
 
 #: where a task's name may become a `Task` (docs/architecture.md, "A task name enters once"): the CLI, the API's
 #: entry points (`takes_task`, and the default task), and the two files that name a task (a card, a shared entry)
 TASK_LOOKUPS = {("src/millvib_env/cli.py", "_run"), ("src/millvib_env/tasks.py", "default_task"),
-                ("src/millvib_env/tasks.py", "entry"), ("src/millvib_env/control/agents.py", "card_task"),
-                ("src/millvib_env/control/tuned.py", "shared_from")}
+                ("src/millvib_env/tasks.py", "entry"), ("src/millvib_env/catalog/agents.py", "card_task"),
+                ("src/millvib_env/catalog/tuned.py", "shared_from")}
 
 
 def test_a_task_name_is_looked_up_only_where_it_enters():
@@ -265,7 +265,7 @@ def test_every_shipped_card_alone_rebuilds_its_agents_environment():
     import numpy as np
 
     import millvib_env  # noqa: F401 - registers the environments
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
 
     for card_path in sorted((ROOT / "agents").glob("*/seed-*/card.json")):
         card = json.loads(card_path.read_text())
@@ -291,7 +291,7 @@ def test_the_plain_sb3_recipe_gives_every_shipped_agents_benchmark_episode_from_
     from stable_baselines3 import PPO, SAC
 
     import millvib_env  # noqa: F401 - registers the environments
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.evaluation.evaluate import run_episodes
 
     monkeypatch.chdir(tmp_path)

@@ -703,7 +703,7 @@ def test_a_base_controller_object_runs_as_its_named_gain_set_in_every_kind_of_en
     action: the residual valve action's or the relative gain action's base. Its episodes are, bit for bit, those of
     its gains given in the config; the zero gain action is exactly the controller's benchmark episode."""
     from millvib_env import PIDGains
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.envs.vec_env import MillVibVecEnv
     from millvib_env.envs.vector import ValveVectorEnv
     from millvib_env.evaluation.evaluate import run_episodes
@@ -739,7 +739,7 @@ def test_a_base_controller_object_runs_as_its_named_gain_set_in_every_kind_of_en
 
 
 def test_a_base_controller_that_the_loop_cannot_run_is_refused_in_one_line():
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     ctrl = load_controller("pid-pf-robust", version="v1")
     cases = [(dict(residual=True, base_controller=load_controller("pid-oracle", version="v1")), "loop_gains"),

@@ -6,7 +6,7 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
-from millvib_env.control.export import EXPORT_TOLERANCE, export_agent  # noqa: E402
+from millvib_env.catalog.export import EXPORT_TOLERANCE, export_agent  # noqa: E402
 from tests._skips import skip_without_sbx  # noqa: E402
 
 
@@ -21,7 +21,7 @@ def test_the_exported_graph_acts_as_the_agent_on_observations_it_was_not_checked
     import onnx
     import onnxruntime as ort
 
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.evaluation.evaluate import env_kwargs_for
 
@@ -58,13 +58,13 @@ def test_a_baseline_or_a_bad_path_is_refused_in_one_line(tmp_path, capsys):
 
 @pytest.mark.slow  # imports JAX: seconds
 def test_an_sbx_sac_is_sb3s_sac_weight_for_weight():
-    """sbx's SAC copied into SB3's (`control.sbx_to_sb3`): the deterministic actions and both critics' values agree
+    """sbx's SAC copied into SB3's (`catalog.sbx_to_sb3`): the deterministic actions and both critics' values agree
     within float32 rounding (JAX and torch sum in their own order), on observations beyond the usual range."""
     skip_without_sbx()
     import torch
 
-    from millvib_env.control.agents import algo_class
-    from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
+    from millvib_env.catalog.agents import algo_class
+    from millvib_env.catalog.sbx_to_sb3 import sb3_sac_from_sbx
     from millvib_env.envs.vec_env import make_vec_env
 
     venv = make_vec_env("MillVib-GainSchedule-v1", 2, seed=0)
@@ -115,8 +115,8 @@ def test_an_exported_graph_is_a_controller_and_a_damaged_one_is_one_line(exporte
     refused in one line each."""
     import onnx
 
-    from millvib_env.control.factory import load_controller
-    from millvib_env.control.onnx_policy import OnnxPolicy
+    from millvib_env.catalog.factory import load_controller
+    from millvib_env.catalog.onnx_policy import OnnxPolicy
     from millvib_env.evaluation.evaluate import run_episodes
 
     out, _ = exported

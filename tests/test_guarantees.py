@@ -261,7 +261,7 @@ def test_a_shipped_name_loads_the_shipped_agent_whatever_lies_in_the_working_dir
     import shutil
 
     from millvib_env._paths import agents_dir
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     monkeypatch.chdir(tmp_path)
     # e.g. from train --save-dir ppo-gain-pf
@@ -278,7 +278,7 @@ def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants
     import shutil
 
     from millvib_env._paths import agents_dir
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     with pytest.raises(ValueError, match="trained on task 'startup', not 'rolling'"):
         load_controller("ppo-gain-pf", task="rolling")
@@ -296,7 +296,7 @@ def test_an_agent_is_refused_on_another_task_and_a_card_cannot_change_the_plants
 
 
 def test_a_seed_folder_that_lost_its_card_is_an_error_not_a_silent_fallback(shipped_agents_copy):
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     root = shipped_agents_copy
     (root / "ppo-gain-pf" / "seed-0" / "card.json").unlink()
@@ -318,7 +318,7 @@ def test_a_severity_window_outside_the_run_is_refused(t_start):
     (lambda: __import__("millvib_env.plant.integrate", fromlist=["x"]).simulate(None, None, "1"), "t_end"),
     (lambda: __import__("millvib_env.severity", fromlist=["x"]).vibration_severity([0.0] * 5000, "a"), "fs"),
     (lambda: __import__("millvib_env.severity", fromlist=["x"]).iso_zone("3"), "severity_mm_s"),
-    (lambda: __import__("millvib_env.control.factory", fromlist=["x"]).load_controller("ppo-gain-pf", seed="0"),
+    (lambda: __import__("millvib_env.catalog.factory", fromlist=["x"]).load_controller("ppo-gain-pf", seed="0"),
      "seed"),
     (lambda: __import__("millvib_env.evaluation.benchmark", fromlist=["x"]).run_benchmark("pid-paper", episodes=2,
                                                                                         progress=False),
@@ -360,7 +360,7 @@ def test_a_damaged_card_is_refused_in_one_line_naming_it(tmp_path, how):
     import shutil
 
     from millvib_env._paths import agents_dir
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     folder = tmp_path / "agent"
     shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
@@ -386,7 +386,7 @@ def test_damaged_normalisation_statistics_are_refused_not_run(tmp_path, key, val
     import numpy as np
 
     from millvib_env._paths import agents_dir
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     folder = tmp_path / "agent"
     shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)

@@ -5,12 +5,12 @@ import copy
 import numpy as np
 import pytest
 
-from millvib_env.control.factory import load_controller
-from millvib_env.control.information import (ATOMS, bound_candidates, classical_candidates, from_env_kwargs,
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.information import (ATOMS, bound_candidates, classical_candidates, from_env_kwargs,
                                              is_oracle, label)
-from millvib_env.control.named import resolve_named_gains_for
+from millvib_env.catalog.named import resolve_named_gains_for
 from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward, preview_env_kwargs
-from millvib_env.control.registry import REGISTRY
+from millvib_env.catalog.registry import REGISTRY
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.envs.gauge import GaugeSettings, gauge_force, gauge_settings
 from millvib_env.envs.observation import OBS_SCALES, slog, unslog

@@ -58,7 +58,7 @@ def test_the_digital_pid_converges_to_the_continuous_one_as_the_rate_grows():
 
 
 def test_scaled_back_to_the_ideal_loop_v1_gives_v0_costs_within_one_percent():
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     seeds = [20003, 20017, 20029]
     for name in ("pid-robust", "pid-pf-robust"):
@@ -207,7 +207,7 @@ def test_the_current_loop_sample_is_the_reading_the_controller_takes_with_the_ac
 def test_a_trace_carries_the_set_point_sample_for_sample():
     """trace_episode's xd is the set-point at every plant sample, aligned with x: a tuned PID's error is
     small beside the 0.3 mm the start's ramp moves the set-point."""
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     tr = trace_episode(load_controller("pid-pf-robust", "startup", version="v1"), seed=20000, task="startup")
     assert tr["xd"].shape == tr["x"].shape == tr["t"].shape

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from millvib_env.analysis.linear import linearize
-from millvib_env.control.factory import load_controller
+from millvib_env.catalog.factory import load_controller
 from millvib_env.tasks import get_task
 from millvib_env.control.mpc import MPCPolicy, MPCSettings, mpc_model
 from millvib_env.plant.model import C_DFL, NY, STATE_NAMES, drive_vector, pack, plant_rhs
@@ -421,7 +421,7 @@ def test_the_iteration_budget_draws_one_iterations_worth_per_epoch_and_every_poo
 
     import torch
 
-    from millvib_env.control.normalization import ObsStats
+    from millvib_env.catalog.normalization import ObsStats
     from millvib_env.training.distill import _fit
 
     seen = []
@@ -454,7 +454,7 @@ def test_a_large_batch_is_normalised_as_each_row_alone():
     """`ObsStats.normalize` transforms a large batch (a distillation's pool) a block of rows at a time: every element
     goes through the same IEEE operations (subtract, divide by a correctly rounded square root, clip, round to
     float32), so the numbers are the row's own exactly, on any machine."""
-    from millvib_env.control.normalization import _ROWS, ObsStats
+    from millvib_env.catalog.normalization import _ROWS, ObsStats
 
     rng = np.random.default_rng(3)
     stats = ObsStats(rng.normal(size=5), rng.random(5) * 4.0, 10.0, 2.0, 1e-8)

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 import millvib_env
-from millvib_env.control.factory import load_controller
-from millvib_env.control.registry import REFERENCE
-from millvib_env.control.named import named_gains
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.registry import REFERENCE
+from millvib_env.catalog.named import named_gains
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import load_env_config
 from millvib_env.tasks import get_task
@@ -51,7 +51,7 @@ def test_the_relative_action_at_zero_runs_the_same_trajectory_as_the_fixed_polic
 def test_a_named_base_is_resolved_from_the_tasks_control_config_before_the_env():
     import gymnasium as gym
 
-    from millvib_env.control.named import resolve_named_gains
+    from millvib_env.catalog.named import resolve_named_gains
 
     env = gym.make("MillVib-GainSchedule-v0", config="rolling",  # as the zoo passes a file's env_kwargs
                    actions={"pressure_feedback": True, "relative": {"base": "pid-pf-robust"}})
@@ -86,7 +86,7 @@ def test_force_feedforward_is_off_by_default_and_the_force_observation_is_an_opt
 
 @pytest.mark.parametrize("task", ["rolling", "change"])
 def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plants(task):
-    from millvib_env.control.factory import control_entry
+    from millvib_env.catalog.factory import control_entry
 
     assert REFERENCE == "pid-pf-robust"
     t = get_task(task)
@@ -96,7 +96,7 @@ def test_pid_pf_robust_is_the_reference_and_beats_pid_robust_on_the_tuning_plant
 
 def test_pid_pf_robust_is_stable_on_the_linearisation_of_every_oracle_grid_plant():
     from millvib_env.analysis.linear import spectral_abscissa
-    from millvib_env.control.factory import control_entry
+    from millvib_env.catalog.factory import control_entry
     from millvib_env.params import PIDGains
 
     for task in ("startup", "rolling", "change"):
@@ -130,7 +130,7 @@ def _plain_loop_cost(ctrl, seed: int) -> float:
 @pytest.mark.slow  # every controller for an episode: the full suite runs it, the quick subset does not
 @pytest.mark.parametrize("task", ["startup", "rolling"])
 def test_every_controller_gives_the_benchmark_cost_in_a_plain_gymnasium_loop(task):
-    from millvib_env.control.agents import list_agents
+    from millvib_env.catalog.agents import list_agents
     from millvib_env.tasks import get_task
 
     seed = get_task(task).seeds["heldout"].start + 7

@@ -7,8 +7,8 @@ import pytest
 
 from millvib_env._paths import agents_dir
 from millvib_env.cli import main as cli_main
-from millvib_env.control.agents import agent_seeds, list_agents
-from millvib_env.control.factory import load_controller
+from millvib_env.catalog.agents import agent_seeds, list_agents
+from millvib_env.catalog.factory import load_controller
 from millvib_env.evaluation.benchmark import public_json, run_benchmark
 from millvib_env.evaluation.stats import cvar, interval, iqm, normalized_score, paired_difference, worst
 from millvib_env.tasks import get_task
@@ -175,7 +175,7 @@ def test_a_benchmark_of_baselines_never_imports_torch_nor_scipy_signal(tmp_path)
     import subprocess
     import sys
 
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.evaluation.evaluate import run_episodes
 
     for name in ("pid-robust", "pid-adaptive"):
@@ -193,7 +193,7 @@ def test_an_evaluation_starts_one_episode_per_plant_and_none_after_the_last(monk
     """The step that ends the last episodes restarts no environment: a new episode's draw (its plant, its settled
     state) would be discarded. The records are those of the loop that restarts them, and an environment left
     done says so in one line if it is stepped again."""
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.envs.core import MillVibCore
     from millvib_env.evaluation.evaluate import run_episodes
@@ -234,7 +234,7 @@ def test_scenarios_in_one_batch_give_each_scenarios_own_episode():
     (`batch_exact`: the baselines, the MPC bounds), a batch of the named scenarios gives the records of one
     scenario at a time, as the benchmark's scenario rows need. A list of the wrong length is refused in one
     line, before any work."""
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.envs.batch import EpisodeBatch
     from millvib_env.evaluation.evaluate import run_episodes
 
@@ -257,7 +257,7 @@ def test_scenarios_in_one_batch_give_each_scenarios_own_episode():
 
 
 def test_episode_records_and_the_csv_columns_have_one_home():
-    from millvib_env.control import load_controller
+    from millvib_env.catalog import load_controller
     from millvib_env.evaluation.evaluate import CSV_FIELDS, RECORD_FIELDS, run_episodes
     from millvib_env.evaluation.sweep import RANGES
 
@@ -324,8 +324,8 @@ def test_a_benchmark_resolves_each_name_once_and_its_jobs_carry_specs(monkeypatc
     """Each controller name is looked up once in the benchmark's process (`resolve_controller`), every training seed
     of an agent included; a job carries the spec, and the controller a worker builds from it runs the episodes the
     controller loaded by name runs."""
-    from millvib_env.control import factory
-    from millvib_env.control.factory import build_controller, resolve_controller
+    from millvib_env.catalog import factory
+    from millvib_env.catalog.factory import build_controller, resolve_controller
     from millvib_env.evaluation.benchmark import jobs, lineup
 
     looked_up: list[str] = []
@@ -432,7 +432,7 @@ def test_a_benchmark_whose_agents_run_in_workers_loads_no_learner_in_the_parent(
 
 
 def test_an_episode_with_its_own_plant_pinned_is_that_episode_and_another_plant_changes_it():
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
     from millvib_env.evaluation.evaluate import run_episodes
 
     ctrl = load_controller("pid-pf-robust", "varied")

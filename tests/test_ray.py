@@ -27,7 +27,7 @@ def test_a_sweep_on_ray_equals_the_local_run(local_cluster):
 
 
 def test_a_benchmark_on_ray_equals_the_local_run(local_cluster):
-    from millvib_env.control.agents import agent_seeds, list_agents
+    from millvib_env.catalog.agents import agent_seeds, list_agents
 
     # a baseline and an agent with every seed it ships, on two plants: the chunks of both kinds of job; the
     # reference is the baseline, so no third controller is added. On startup (1000 steps an episode, half of

@@ -232,7 +232,7 @@ def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
     import shutil
 
     from millvib_env._paths import agents_dir
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     folder = tmp_path / "agent"
     shutil.copytree(agents_dir() / "ppo-gain-pf" / "seed-0", folder)
@@ -250,7 +250,7 @@ def test_an_agent_folder_without_its_statistics_is_an_error(tmp_path):
 def test_a_changed_shipped_agent_fails_its_checksum(shipped_agents_copy):
     import shutil
 
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     root = shipped_agents_copy
     card = root / "ppo-gain-pf" / "seed-0" / "card.json"

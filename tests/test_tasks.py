@@ -230,7 +230,7 @@ def test_a_task_carries_its_config_in_each_version_and_refuses_another():
 
 
 def test_an_entry_point_refuses_a_call_that_does_not_fit_it_by_its_name():
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     with pytest.raises(TypeError, match=r"load_controller\(\) got an unexpected keyword argument 'tsk'"):
         load_controller("pid-robust", tsk="rolling")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from millvib_env.cli import main as cli_main
-from millvib_env.control.agents import agent_seeds, list_agents
-from millvib_env.control.factory import load_controller
+from millvib_env.catalog.agents import agent_seeds, list_agents
+from millvib_env.catalog.factory import load_controller
 from millvib_env.control.policies import FixedGainPolicy, OraclePolicy
 from millvib_env.envs.config import load_env_config
 from millvib_env.envs.core import MillVibCore
@@ -98,7 +98,7 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
         np.testing.assert_allclose(plain.predict(obs, deterministic=True)[0],  # torch's float32 call-to-call rounding
                                    agent.model.predict(obs, deterministic=True)[0], rtol=0.0, atol=1e-5)
         if importlib.util.find_spec("onnxruntime") is not None:  # and it leaves Python as any SB3 agent
-            from millvib_env.control.export import EXPORT_TOLERANCE, export_agent
+            from millvib_env.catalog.export import EXPORT_TOLERANCE, export_agent
 
             summary = export_agent(str(tmp_path / "agent"), tmp_path / "sac.onnx", check_steps=50, latency_calls=0)
             assert summary["max_abs_difference"] <= EXPORT_TOLERANCE
@@ -111,7 +111,7 @@ def test_each_algorithm_smoke_trains_and_resumes(tmp_path, algo, backend):
 def test_sac_trains_with_sbx_by_default_where_it_is_installed_and_everything_else_with_sb3():
     import importlib.util
 
-    from millvib_env.control.agents import resolved_backend
+    from millvib_env.catalog.agents import resolved_backend
 
     have_sbx = importlib.util.find_spec("sbx") is not None
     assert resolved_backend("sac") == ("sbx" if have_sbx else "sb3")
@@ -145,7 +145,7 @@ def test_jax_compilations_are_cached_beside_numbas_unless_the_user_chose(tmp_pat
 @pytest.mark.parametrize("backend", ["sb3", pytest.param("sbx", marks=pytest.mark.slow)])
 def test_a_new_sac_starts_at_the_zero_action(backend):
     # the relative action's zero is the base controller: a new agent starts from it in either backend
-    from millvib_env.control.agents import algo_class
+    from millvib_env.catalog.agents import algo_class
     from millvib_env.envs.vec_env import make_vec_env
     from millvib_env.training.train import start_at_zero_action
 
@@ -241,7 +241,7 @@ def test_a_retired_agent_is_left_out_of_the_default_lineup_and_runs_when_named()
     """A card's ``retired`` (why: superseded) keeps the agent loadable by name, for earlier results, and out of a
     benchmark that names no controllers, and out of the 'answer' group; every other shipped agent of the task and
     version stays in."""
-    from millvib_env.control.agents import agent_retired
+    from millvib_env.catalog.agents import agent_retired
     from millvib_env.evaluation.benchmark.lineup import answer_group, default_lineup
 
     task = get_task("rolling")
@@ -328,7 +328,7 @@ def test_every_normalize_form_train_accepts_saves_an_agent_that_loads_and_benchm
 
 
 def test_the_zoo_forms_of_normalize_are_read_as_data_and_a_bad_one_is_refused_in_one_line():
-    from millvib_env.control.normalization import normalize_kwargs, normalizes_obs
+    from millvib_env.catalog.normalization import normalize_kwargs, normalizes_obs
 
     both = {"norm_obs": True, "norm_reward": True}
     for form, want in ((True, both), ("True", both), (False, None), ("None", None), (None, None),

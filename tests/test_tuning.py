@@ -59,7 +59,7 @@ def test_tuning_into_a_file_leaves_the_shipped_configs_byte_identical_and_keeps_
 
 
 def test_every_tuned_entry_is_a_registered_baseline_and_every_fixed_gain_set_is_tuned():
-    from millvib_env.control.registry import REGISTRY
+    from millvib_env.catalog.registry import REGISTRY
     from millvib_env.tuning.baselines import ENTRIES, SHARED, TUNERS
 
     assert ENTRIES == tuple(TUNERS) and set(SHARED) <= set(TUNERS) and set(TUNERS) <= set(REGISTRY)
@@ -102,7 +102,7 @@ def test_a_tune_of_some_entries_says_what_it_replaces_and_keeps_the_whole_tunes_
     import yaml
 
     from millvib_env.cli import main as cli_main
-    from millvib_env.control.factory import control_config_path
+    from millvib_env.catalog.factory import control_config_path
     from millvib_env.tasks import get_task
     from millvib_env.tuning import baselines
 

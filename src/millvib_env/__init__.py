@@ -43,7 +43,7 @@ _register_envs()
 
 def make_vec_env(env_id: str, n_envs: int = 1, seed: int | None = None, **env_kwargs):
     """Native batched Stable-Baselines3 VecEnv (see `millvib_env.envs.vec_env.make_vec_env`)."""
-    from millvib_env.control.named import resolve_named_gains
+    from millvib_env.catalog.named import resolve_named_gains
     from millvib_env.envs.batch import env_version
     from millvib_env.envs.vec_env import make_vec_env as _make
 

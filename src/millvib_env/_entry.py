@@ -1,5 +1,5 @@
 """The registered env ids' entry points: the environments of `envs`, with named gain sets in their keyword
-arguments resolved to numbers first (`control.named`), so ``gym.make(id, actions={"residual_gains": "pid-pf-ff"})``
+arguments resolved to numbers first (`catalog.named`), so ``gym.make(id, actions={"residual_gains": "pid-pf-ff"})``
 and the zoo's files work while the env layer takes numbers only. Each entry point carries its environment's
 docstring (the manual) and the class itself as ``__wrapped__``."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 from millvib_env._checks import shown
-from millvib_env.control.named import resolve_named_gains
+from millvib_env.catalog.named import resolve_named_gains
 from millvib_env.envs import environments, vector
 
 __all__ = ["GainScheduleEnv", "ValveEnv", "GainScheduleVectorEnv", "ValveVectorEnv"]

@@ -11,7 +11,7 @@ for one processor's instructions is never loaded on another that shares the home
 in size (least recently used entries go first) and pruned after 30 days unused, as numba's are.
 Set ``JAX_COMPILATION_CACHE_DIR`` (or ``JAX_ENABLE_COMPILATION_CACHE=false``) yourself to override.
 
-Called by `control.agents.algo_class` before sbx (and so JAX) is imported: JAX reads these settings
+Called by `catalog.agents.algo_class` before sbx (and so JAX) is imported: JAX reads these settings
 from the environment once, at import. Where JAX was imported first, nothing is changed.
 """
 

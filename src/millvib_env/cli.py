@@ -239,7 +239,7 @@ def _cmd_tune(args) -> int:
 
 def _cmd_export(args) -> int:
     from millvib_env._paths import check_output
-    from millvib_env.control.export import export_agent
+    from millvib_env.catalog.export import export_agent
 
     check_output(args.out, "--out")
     summary = export_agent(args.agent, args.out, seed=args.seed, check_steps=args.check_steps,
@@ -256,7 +256,7 @@ def _cmd_distill(args) -> int:
     from pathlib import Path
 
     from millvib_env._paths import agents_dir, check_result_folder
-    from millvib_env.control.manifest import AGENT_FILES, write_manifest
+    from millvib_env.catalog.manifest import AGENT_FILES, write_manifest
     from millvib_env.training.distill import distill
 
     check_result_folder(args.save_dir, "--save-dir", "distill", own_files=AGENT_FILES)
@@ -472,7 +472,7 @@ def _add_tune(sub) -> None:
 
 def _add_export(sub) -> None:
     p = sub.add_parser("export", help="a trained agent as an ONNX graph, checked against the agent",
-                       description=_plain(_module_doc("millvib_env.control.export")),
+                       description=_plain(_module_doc("millvib_env.catalog.export")),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("agent", help="a shipped agent's name (millvib benchmark lists them) or an agent folder")
     p.add_argument("--seed", type=int, default=None, help="the training seed of a multi-seed agent (default: "

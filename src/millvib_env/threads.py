@@ -50,12 +50,12 @@ XLA_ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_thread
 def one_xla_thread() -> None:
     """Run JAX's CPU computations on one thread (``XLA_FLAGS``), unless the user set XLA flags: a
     learner's networks are small, and two trainings share a 2-core machine. Takes effect only before
-    JAX's first computation, so `control.agents.algo_class` calls it before importing sbx."""
+    JAX's first computation, so `catalog.agents.algo_class` calls it before importing sbx."""
     os.environ.setdefault("XLA_FLAGS", XLA_ONE_THREAD)
 
 
 def one_torch_thread() -> None:
-    """Run torch on one thread where a trained agent acts (`control.agents.AgentPolicy`), unless the user set
+    """Run torch on one thread where a trained agent acts (`catalog.agents.AgentPolicy`), unless the user set
     OMP_NUM_THREADS: an agent's network is small, and waking torch's other threads for each of its products costs
     more than they give. Measured on the rolling student, 40 plants in one process (`docs/performance.md`): 2.2 s
     against 2.9-3.5 s with torch's default two threads here. How a product is split over threads can round its

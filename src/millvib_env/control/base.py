@@ -30,7 +30,7 @@ class Controller:
     reads_plant = False
     #: the task it was built for (resolved once where the name entered: `load_controller`, an agent's card)
     task: Task | None = None
-    #: a trained agent's card (`card.json`) and training seed (`control.agents.AgentPolicy`); None for a baseline
+    #: a trained agent's card (`card.json`) and training seed (`catalog.agents.AgentPolicy`); None for a baseline
     card: dict | None = None
     seed: int | None = None
     #: True: an environment's actions depend on that environment alone, bit for bit, whatever else is in the

@@ -13,7 +13,7 @@
 * `AdaptivePolicy` (`pid-adaptive`, `control.adaptive`): estimates c1 and Ct online from what a
   mill measures and takes the oracle's gains for the estimate: deployable.
 
-Trained agents (`AgentPolicy`) and their folders are in `control.agents`; `control.factory.load_controller`
+Trained agents (`AgentPolicy`) and their folders are in `catalog.agents`; `catalog.factory.load_controller`
 builds any of them by name.
 
 The gains of the baselines and how they were found live in configs/control/<task>.yaml.

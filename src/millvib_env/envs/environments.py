@@ -271,7 +271,7 @@ class GainScheduleEnv(MillVibEnv):
 
     ```python
     from millvib_env import PIDGains
-    from millvib_env.control.factory import load_controller
+    from millvib_env.catalog.factory import load_controller
 
     env = gym.make("MillVib-GainSchedule-v1", base_controller=load_controller("pid-pf-robust", version="v1"))
     env = gym.make("MillVib-Valve-v1", residual=True, base_controller=PIDGains(kp=8e5, ki=5e7, kd=300, kpl=6e-8))

@@ -193,7 +193,7 @@ def _gain_bounds(path: str, value: Any) -> None:
 
 #: what a named gain set in an env config needs (the env layer takes numbers only)
 _NAMED_HINT = ("the env layer takes gains as numbers; a named gain set is resolved before it (gym.make, make_vec_env "
-               "and the CLI do that; in Python: millvib_env.control.named.resolve_named_gains)")
+               "and the CLI do that; in Python: millvib_env.catalog.named.resolve_named_gains)")
 
 
 def _feedforward(path: str, value: Any) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 from millvib_env._checks import integer, shown, strings
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
-from millvib_env.control.factory import load_controller
+from millvib_env.catalog.factory import load_controller
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_id_for
 from millvib_env.params import studied_range

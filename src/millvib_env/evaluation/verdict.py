@@ -1,14 +1,14 @@
 """Same information, same footing: each controller of a benchmark against the strongest classical controller that
 reads the same signals, each information set's bound and its room, and the verdict on severity beside the cost's.
 
-For every information set among the benchmark's deployable controllers (`control.information`):
+For every information set among the benchmark's deployable controllers (`catalog.information`):
 
 * **its classical controller**: the cheapest (mean cost on the benchmark's plants) of the deployable baselines whose
   set lies within it (they read it, or less: every classical design open to a controller of the set, so what the
   set's controllers must at least beat); choosing on the same plants favours the classical side, never the learned
   one;
 * **its bound**: the cheapest oracle that knows at least the set and, beyond it, only the plant and the
-  disturbances now (`control.information.bound_candidates`); its room is ``(classical - bound) / classical`` on
+  disturbances now (`catalog.information.bound_candidates`); its room is ``(classical - bound) / classical`` on
   the mean and the CVaR-20, with paired 95 % intervals;
 * **whether the bound holds**: no controller of the set costs less than it on the mean or on the CVaR-20 with an
   interval that excludes zero; the controllers that do are named (`beaten_by`): there the bound is not one.
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from millvib_env.control.information import bound_candidates, classical_candidates, is_oracle
+from millvib_env.catalog.information import bound_candidates, classical_candidates, is_oracle
 from millvib_env.evaluation.stats import paired_difference
 
 __all__ = ["TRACKING_GUARD", "information_verdict", "format_information"]

@@ -9,8 +9,8 @@ from typing import cast
 import numpy as np
 
 from millvib_env._checks import integer
-from millvib_env.control.manifest import EVAL_CURVE
-from millvib_env.control.normalization import STATS_FILE, save_obs_stats
+from millvib_env.catalog.manifest import EVAL_CURVE
+from millvib_env.catalog.normalization import STATS_FILE, save_obs_stats
 
 __all__ = ["evaluation", "warmup"]
 

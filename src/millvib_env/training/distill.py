@@ -36,9 +36,9 @@ import numpy as np
 
 from millvib_env._checks import integer, real
 from millvib_env._paths import atomic_folder, write_text_atomic
-from millvib_env.control.factory import load_controller
-from millvib_env.control.named import resolve_named_gains_for
-from millvib_env.control.normalization import ObsStats
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.named import resolve_named_gains_for
+from millvib_env.catalog.normalization import ObsStats
 from millvib_env.control.preview import DEFAULT_PREVIEW, preview_env_kwargs
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.tasks import TRAIN_SEED_STRIDE, Task, takes_task

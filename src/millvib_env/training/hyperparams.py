@@ -16,7 +16,7 @@ from typing import Any
 from millvib_env._checks import shown, shown_path
 from millvib_env._paths import config_dir
 from millvib_env._yaml import load_yaml
-from millvib_env.control.normalization import normalize_kwargs
+from millvib_env.catalog.normalization import normalize_kwargs
 from millvib_env.envs.specs import ENV_SPECS
 
 __all__ = ["parse_zoo_value", "load_hyperparams", "shipped_hyperparams", "ACTIVATIONS", "ZOO_ALGO"]
@@ -82,7 +82,7 @@ def shipped_hyperparams(path: str | Path) -> Path:
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
     """The hyperparameters of `algo` for `env_id` from configs/agents/<algo>.yml (or `path`): its entry, or for a
     task config's own id (``MillVib-Valve-Rolling-v1``) without one, its generic id's (``MillVib-Valve-v1``).
-    ``normalize`` comes back as VecNormalize's keywords or None (`control.normalization.normalize_kwargs`)."""
+    ``normalize`` comes back as VecNormalize's keywords or None (`catalog.normalization.normalize_kwargs`)."""
 
     path = shipped_hyperparams(path) if path else config_dir() / "agents" / f"{ZOO_ALGO.get(algo, algo)}.yml"
     table = load_yaml(path, "hyperparameter file") or {}

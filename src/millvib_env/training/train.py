@@ -28,11 +28,11 @@ import numpy as np
 
 from millvib_env._checks import integer, shown, shown_path
 from millvib_env._paths import atomic_folder, check_output, check_result_folder, write_text_atomic
-from millvib_env.control.factory import load_controller
-from millvib_env.control.agents import ALGOS, SEED_FOLDER, AgentPolicy, agent_env_kwargs, learner
-from millvib_env.control.manifest import EVAL_CURVE
-from millvib_env.control.named import resolve_named_gains
-from millvib_env.control.normalization import STATS_FILE, save_obs_stats
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.agents import ALGOS, SEED_FOLDER, AgentPolicy, agent_env_kwargs, learner
+from millvib_env.catalog.manifest import EVAL_CURVE
+from millvib_env.catalog.named import resolve_named_gains
+from millvib_env.catalog.normalization import STATS_FILE, save_obs_stats
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.batch import env_mode, env_version
 from millvib_env.envs.specs import ENV_SPECS
@@ -192,7 +192,7 @@ def _train(algo: str, env_id: str = "MillVib-GainSchedule-v1", *, task: str | Ta
     ("last"), the best evaluated one ("best", the starting policy included, with the observation
     statistics of its moment) or the best evaluated one after training started ("trained": never the
     starting policy, so a learned row is a trained policy). `backend`: the learner library, "sb3" or "sbx"
-    (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`control.agents.learner`: sbx for SAC where
+    (JAX; PPO and SAC), with the same hyperparameter files, or "auto" (`catalog.agents.learner`: sbx for SAC where
     it is installed); the card records it. A SAC trained with sbx is saved in SB3's format (`model_format` in the
     card), so `load_controller`, SB3's own `SAC.load` and `millvib export` run it without JAX. The card's
     validation scores the agent on the first `validation_episodes` of the task's validation plants (default 40,

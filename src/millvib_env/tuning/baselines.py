@@ -39,9 +39,9 @@ from millvib_env._checks import integer, shown
 from millvib_env._paths import check_output, write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.control.base import GainTable
-from millvib_env.control.factory import control_config_path, control_entry, oracle_table
-from millvib_env.control.registry import LOOP_ONLY
-from millvib_env.control.tuned import shared_from
+from millvib_env.catalog.factory import control_config_path, control_entry, oracle_table
+from millvib_env.catalog.registry import LOOP_ONLY
+from millvib_env.catalog.tuned import shared_from
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.distributed import run_jobs
 from millvib_env.envs.config import cached_env_config

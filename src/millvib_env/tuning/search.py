@@ -23,12 +23,12 @@ from scipy import optimize
 from millvib_env._checks import shown
 from millvib_env.control.adaptive import AdaptivePolicy, EstimatorSettings
 from millvib_env.control.base import Controller
-from millvib_env.control.factory import oracle_table
+from millvib_env.catalog.factory import oracle_table
 from millvib_env.control.lqr import LQRWeights, lqr_gains
 from millvib_env.control.policies import LQRPolicy
-from millvib_env.control.named import named_gains
+from millvib_env.catalog.named import named_gains
 from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward
-from millvib_env.control.registry import REFERENCE
+from millvib_env.catalog.registry import REFERENCE
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.batch import EpisodeBatch, env_id_for
 from millvib_env.envs.config import load_env_config

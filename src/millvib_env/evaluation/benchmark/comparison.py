@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
-from millvib_env.control.registry import REGISTRY
+from millvib_env.catalog.registry import REGISTRY
 from millvib_env.evaluation.stats import normalized_score, paired_difference
 from millvib_env.evaluation.benchmark.lineup import DEPLOYABLE_CLASSICAL, ROOM_BOUNDS
 from millvib_env.evaluation.benchmark.protocol import _by_seed, summarize

@@ -10,8 +10,8 @@ from tqdm.auto import tqdm
 
 from millvib_env._checks import integer
 from millvib_env.control.base import Controller
-from millvib_env.control.factory import ControllerSpec, build_controller, load_controller
-from millvib_env.control.registry import REGISTRY
+from millvib_env.catalog.factory import ControllerSpec, build_controller, load_controller
+from millvib_env.catalog.registry import REGISTRY
 from millvib_env.distributed import run_jobs, start_workers
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task

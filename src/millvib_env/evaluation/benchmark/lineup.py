@@ -10,11 +10,11 @@ from typing import Any, Mapping, Sequence
 from tqdm.auto import tqdm
 
 from millvib_env._checks import shown
-from millvib_env.control.agents import agent_base, list_agents
+from millvib_env.catalog.agents import agent_base, list_agents
 from millvib_env.control.base import Controller
-from millvib_env.control.factory import ControllerSpec, build_controller, resolve_controller
-from millvib_env.control.information import from_env_kwargs
-from millvib_env.control.registry import REFERENCE, REGISTRY, ROOM_BOUNDS, baseline_names
+from millvib_env.catalog.factory import ControllerSpec, build_controller, resolve_controller
+from millvib_env.catalog.information import from_env_kwargs
+from millvib_env.catalog.registry import REFERENCE, REGISTRY, ROOM_BOUNDS, baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.tasks import Task
 
@@ -104,7 +104,7 @@ def _own_controllers(controllers: Any, version: str, task: Task) -> tuple[list[s
 
 def default_lineup(version: str, task: Task) -> list[str]:
     """The controllers of a benchmark that names none: every baseline of `version` and every agent trained on
-    `task` in it, but the retired ones (`control.agents.agent_retired`: named, they run)."""
+    `task` in it, but the retired ones (`catalog.agents.agent_retired`: named, they run)."""
     return baseline_names(version) + list_agents(task, version, retired=False)
 
 
@@ -132,7 +132,7 @@ def _expand_groups(names: Sequence[str], version: str, task: Task) -> list[str]:
 
 
 def information_of(name: str, ctrl: Controller, task: Task, version: str) -> str:
-    """What controller `name` reads (`control.information`): a baseline's declared set, else the set its
+    """What controller `name` reads (`catalog.information`): a baseline's declared set, else the set its
     environment's observation gives it (an agent's card, an exported graph, a user's controller)."""
     if name in REGISTRY:
         return REGISTRY[name].information

@@ -10,7 +10,7 @@ import numpy as np
 
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import save_figure
-from millvib_env.control.factory import build_controller, load_controller
+from millvib_env.catalog.factory import build_controller, load_controller
 from millvib_env.envs.config import DEFAULT_VERSION
 from millvib_env.tasks import Task
 from millvib_env.evaluation.evaluate import trace_episode

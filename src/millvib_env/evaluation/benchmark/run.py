@@ -8,7 +8,7 @@ from typing import Sequence
 
 from millvib_env._checks import shown
 from millvib_env.control.base import Controller
-from millvib_env.control.registry import REFERENCE, REGISTRY, baseline_names
+from millvib_env.catalog.registry import REFERENCE, REGISTRY, baseline_names
 from millvib_env.envs.config import DEFAULT_VERSION, ENV_VERSIONS
 from millvib_env.tasks import Task, takes_task
 from millvib_env.evaluation.verdict import information_verdict
@@ -27,7 +27,7 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
                   all_seeds: bool = False, reference: str | None = None, jobs: int | str = 1,
                   preview: str = DEFAULT_PREVIEW_GAUGE) -> dict:
     """Evaluate `controllers` (default: every baseline and every agent trained on the task but the retired ones,
-    `control.agents.agent_retired`) on
+    `catalog.agents.agent_retired`) on
     `episodes` held-out plants of `task` drawn by a generator seeded with `seed`
     (`Task.heldout_plants`). Agents run with their lowest training seed, or with every seed they
     ship (`all_seeds`, the full protocol; its default is FULL_EPISODES plants, DEFAULT_EPISODES

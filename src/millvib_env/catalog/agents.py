@@ -1,5 +1,5 @@
 """Trained agents and their folders: what an agent folder holds (card.json, model.zip,
-vecnormalize.npz, evaluations.npz; `control.manifest` checks the shipped ones, `control.normalization`
+vecnormalize.npz, evaluations.npz; `catalog.manifest` checks the shipped ones, `catalog.normalization`
 reads the statistics), how a name finds one (a shipped agent under agents/ always wins; a local folder
 needs a path) and `AgentPolicy`, which runs one with SB3's `predict`.
 """
@@ -19,11 +19,11 @@ from millvib_env import _jax_cache
 from millvib_env._checks import shown, shown_path
 from millvib_env._paths import agents_dir
 from millvib_env.control.base import Controller
-from millvib_env.control.manifest import verify_agent
-from millvib_env.control.named import resolve_named_gains_for
-from millvib_env.control.normalization import STATS_FILE, ObsStats, load_obs_stats, normalizes_obs
-from millvib_env.control.registry import baseline_names
-from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
+from millvib_env.catalog.manifest import verify_agent
+from millvib_env.catalog.named import resolve_named_gains_for
+from millvib_env.catalog.normalization import STATS_FILE, ObsStats, load_obs_stats, normalizes_obs
+from millvib_env.catalog.registry import baseline_names
+from millvib_env.catalog.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import env_version
 from millvib_env.tasks import Task, get_task, takes_task
 from millvib_env.threads import one_torch_thread, one_xla_thread
@@ -43,7 +43,7 @@ BACKENDS = {"sb3": ALGOS, "sbx": ("ppo", "sac")}
 def resolved_backend(algo: str, backend: str = "auto") -> str:
     """The learner library `millvib train` uses: `backend` as given, or for "auto" (the default) sbx for SAC where
     it is installed (about twice SB3's speed, docs/performance.md) and SB3 otherwise. A SAC trained with sbx is
-    saved in SB3's format (`control.sbx_to_sb3`), so it loads, runs and exports without JAX."""
+    saved in SB3's format (`catalog.sbx_to_sb3`), so it loads, runs and exports without JAX."""
     if backend == "auto":
         return "sbx" if str(algo).lower() == "sac" and importlib.util.find_spec("sbx") is not None else "sb3"
     return backend
@@ -86,7 +86,7 @@ class Learner:
 
     def portable(self, path: Path) -> str:
         """The library the model saved at `path` is for, once made portable: an sbx SAC is rewritten as SB3's SAC
-        with the same weights (`control.sbx_to_sb3`), so the agent loads, runs and exports without JAX (a run's
+        with the same weights (`catalog.sbx_to_sb3`), so the agent loads, runs and exports without JAX (a run's
         checkpoints, for --resume, stay sbx's); any other model is left as it was trained."""
         if self.backend != "sbx" or self.algo != "sac":
             return self.backend

@@ -2,7 +2,7 @@
 
 A baseline is a `Baseline` entry: its description (the benchmark's and `millvib controllers`' text), its
 builder (name, task, version, the task's env config and gain map -> a `Controller`), and whether it needs the
-sampled loop (v1) or is a fixed gain set that a config may name. `control.factory.load_controller` builds any of
+sampled loop (v1) or is a fixed gain set that a config may name. `catalog.factory.load_controller` builds any of
 them, and agents by folder. A new fixed-gain baseline is one entry here (``Baseline.fixed(description)``) and its
 entry in configs/control/[v1/]<task>.yaml (docs/maintainers.md).
 """
@@ -20,7 +20,7 @@ from millvib_env.control.lqr import LQRWeights
 from millvib_env.control.mpc import MPCPolicy, MPCSettings
 from millvib_env.control.policies import FixedGainPolicy, LQRPolicy, OraclePolicy
 from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward
-from millvib_env.control.tuned import control_config_path, control_entry, entry_gains, oracle_table
+from millvib_env.catalog.tuned import control_config_path, control_entry, entry_gains, oracle_table
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.config import EnvConfig
 from millvib_env.params import PAPER_GAINS
@@ -49,12 +49,12 @@ class Baseline:
     #: the environment it acts in: "gain" (it sets the PID's gains) or "valve" (it commands the valve)
     env_mode: str = "gain"
     #: a fixed-gain baseline's gains (`Baseline.fixed`); env kwargs and hyperparameter files may then name it
-    #: (`control.named`)
+    #: (`catalog.named`)
     gains: GainsFn | None = None
     #: it knows the disturbances' and the set-point's course ahead (a preview): the benchmark's room to learn
     #: keeps it apart from the bounds that know the present only
     previews: bool = False
-    #: what it reads (`control.information`: atoms joined by "+")
+    #: what it reads (`catalog.information`: atoms joined by "+")
     information: str = "loop"
     #: a deployable classical controller: the benchmark's group 'classical' and `millvib headroom`, and the best of
     #: them is named beside the room
@@ -85,7 +85,7 @@ class Baseline:
 
 
 def tuned_gains(name: str, task: Task, version: str) -> tuple[list[float], str]:
-    """Entry `name` of the task's control config in the version (`control.tuned`): its checked gains and ``how``."""
+    """Entry `name` of the task's control config in the version (`catalog.tuned`): its checked gains and ``how``."""
     entry = control_entry(task, name, version)
     return entry_gains(task, name, entry, version), entry.get("how", "")
 

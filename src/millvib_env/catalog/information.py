@@ -13,7 +13,7 @@ The atoms (`ATOMS`), in their order:
 
 A set is written as its atoms joined by ``+`` (``loop+force+schedule+gauge``). A controller that holds
 ``params`` or ``state`` is an oracle, not deployable: it bounds the sets it contains (`bound_candidates`). A
-baseline declares its set in its registry entry (`control.registry.Baseline.information`); an agent's, an
+baseline declares its set in its registry entry (`catalog.registry.Baseline.information`); an agent's, an
 exported graph's or a user's controller's set is read off the observation its environment gives it
 (`from_env_kwargs`), plus ``params`` and ``state`` where it reads the plant itself (`Controller.reads_plant`).
 """

@@ -4,7 +4,7 @@ The name is resolved here, in the control layer, to that baseline's gains on the
 arguments name (startup for any other config) in the environment's version; the env layer takes numbers only.
 
 `resolve_named_gains` is applied where keyword arguments enter: the registered env ids' entry points
-(`millvib_env._entry`), `millvib_env.make_vec_env`, an agent's card (`control.agents.AgentPolicy`), `train` and
+(`millvib_env._entry`), `millvib_env.make_vec_env`, an agent's card (`catalog.agents.AgentPolicy`), `train` and
 `distill`.
 """
 
@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from millvib_env._checks import shown
-from millvib_env.control.registry import REGISTRY
+from millvib_env.catalog.registry import REGISTRY
 from millvib_env.envs.config import CONFIG_ALIASES
 from millvib_env.tasks import Task, all_tasks, takes_task
 from millvib_env.envs.config import DEFAULT_VERSION
@@ -21,14 +21,14 @@ from millvib_env.envs.config import DEFAULT_VERSION
 __all__ = ["NAMED_GAINS", "named_gains", "task_of_config", "has_named_gains", "resolve_named_gains",
            "resolve_named_gains_for"]
 
-#: the fixed-gain baselines whose gains may be named (`control.registry.Baseline.fixed`)
+#: the fixed-gain baselines whose gains may be named (`catalog.registry.Baseline.fixed`)
 NAMED_GAINS: tuple[str, ...] = tuple(name for name, b in REGISTRY.items() if b.named_gains)
 
 
 def named_gains(name: str, task: Task, version: str = DEFAULT_VERSION) -> list[float]:
     """The gains of the fixed-gain baseline `name` of `task` in environment version `version`:
-    its control config entry (`control.tuned.control_entry`, which follows ``from_task``), checked
-    (`control.tuned.entry_gains`); the paper's PID from MillParams' module."""
+    its control config entry (`catalog.tuned.control_entry`, which follows ``from_task``), checked
+    (`catalog.tuned.entry_gains`); the paper's PID from MillParams' module."""
 
     gains_fn = REGISTRY[name].gains if name in REGISTRY else None
     if gains_fn is None:

@@ -11,7 +11,7 @@ observations of a real episode of the agent's task and every action must equal t
 1e-5 (float32 rounding); the time per call at batch 1 is measured beside it (a figure of this machine,
 printed, never asserted).
 
-A SAC trained with sbx (JAX) is exported through the same SB3 networks, weight for weight (`control.sbx_to_sb3`),
+A SAC trained with sbx (JAX) is exported through the same SB3 networks, weight for weight (`catalog.sbx_to_sb3`),
 and checked against its own sbx actions. Recurrent agents (RecurrentPPO) and sbx's PPO are not exported: their
 state or their framework needs another path. ``pip install -e '.[export]'`` installs onnx and onnxruntime.
 """
@@ -27,10 +27,10 @@ import numpy as np
 
 from millvib_env._checks import integer, shown
 from millvib_env._paths import atomic_path
-from millvib_env.control.agents import AgentPolicy, check_agent, list_agents
-from millvib_env.control.factory import load_controller
-from millvib_env.control.registry import baseline_names
-from millvib_env.control.sbx_to_sb3 import sb3_sac_from_sbx
+from millvib_env.catalog.agents import AgentPolicy, check_agent, list_agents
+from millvib_env.catalog.factory import load_controller
+from millvib_env.catalog.registry import baseline_names
+from millvib_env.catalog.sbx_to_sb3 import sb3_sac_from_sbx
 from millvib_env.envs.batch import EpisodeBatch
 
 __all__ = ["export_agent", "ONNX_OPSET", "EXPORT_TOLERANCE"]

@@ -4,7 +4,7 @@ sbx's SAC and SB3's build the same networks for a flat observation: the actor an
 log-std head, the squashed Gaussian's mode tanh(mean) as the deterministic action; the critics MLPs on the
 observation and the action, side by side (sbx stacks them in one vmapped module). A Dense kernel (in, out) is a
 Linear weight (out, in) transposed. `sb3_sac_from_sbx` copies the actor, both critics and their targets, and the
-entropy coefficient into a new SB3 SAC, which then runs (`predict`, ONNX export: `control.export`) without JAX;
+entropy coefficient into a new SB3 SAC, which then runs (`predict`, ONNX export: `catalog.export`) without JAX;
 its actions equal the sbx model's within float32 rounding (a test compares them). The replay buffer and the
 optimisers' state are not carried over: the copy is for running the policy, not for resuming its training.
 """

@@ -1,4 +1,4 @@
-"""An exported agent (`millvib export`, `control.export`) run as a controller through onnxruntime, without torch,
+"""An exported agent (`millvib export`, `catalog.export`) run as a controller through onnxruntime, without torch,
 SB3 or JAX: ``load_controller("student.onnx")``, ``millvib benchmark --controllers student.onnx``.
 
 The graph holds the whole policy (observation statistics, actor, clip), and its metadata says where it runs: the
@@ -7,7 +7,7 @@ observation's channels. Everything read from the file is checked as data before 
 metadata is missing or of the wrong kind, whose settings could change the episode the agent meets (the same rule
 as a card's), or whose observation channels are not the ones its environment gives now (exported under another
 version of the package) is refused in one line. The actions are the agent's own within float32 rounding
-(`control.export.EXPORT_TOLERANCE`, checked when the file was written), so its benchmark rows are the agent's
+(`catalog.export.EXPORT_TOLERANCE`, checked when the file was written), so its benchmark rows are the agent's
 within the same rounding (tests/test_export.py). ``pip install -e '.[export]'`` installs onnxruntime.
 """
 
@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from millvib_env._checks import shown, shown_path
-from millvib_env.control.agents import AGENT_ENV_KEYS, card_task
+from millvib_env.catalog.agents import AGENT_ENV_KEYS, card_task
 from millvib_env.control.base import Controller
 from millvib_env.envs.batch import ENV_IDS, EpisodeBatch
 from millvib_env.tasks import Task
 
 __all__ = ["OnnxPolicy", "is_onnx_name"]
 
-#: the metadata keys `control.export` writes that a controller needs
+#: the metadata keys `catalog.export` writes that a controller needs
 _NEEDED = ("millvib.agent", "millvib.seed", "millvib.task", "millvib.env_id", "millvib.env_kwargs",
            "millvib.observation")
 

@@ -1,6 +1,6 @@
-"""Controllers by name: `load_controller` builds a baseline through its registry entry (`control.registry`,
-from its tuned entry in configs/control/[v1/]<task>.yaml, `control.tuned`) or loads a trained agent
-(`control.agents`), so every command and the plain Gymnasium loop (`ctrl.make_env()`) get the same controller
+"""Controllers by name: `load_controller` builds a baseline through its registry entry (`catalog.registry`,
+from its tuned entry in configs/control/[v1/]<task>.yaml, `catalog.tuned`) or loads a trained agent
+(`catalog.agents`), so every command and the plain Gymnasium loop (`ctrl.make_env()`) get the same controller
 for the same name.
 """
 
@@ -11,11 +11,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from millvib_env._checks import instance, shown, shown_path
-from millvib_env.control.agents import AgentPolicy, agent_folder, agent_seed_folders
+from millvib_env.catalog.agents import AgentPolicy, agent_folder, agent_seed_folders
 from millvib_env.control.base import Controller
-from millvib_env.control.onnx_policy import OnnxPolicy, is_onnx_name
-from millvib_env.control.registry import REGISTRY, baseline_names
-from millvib_env.control.tuned import control_config_path, control_entry, load_control_config, oracle_table
+from millvib_env.catalog.onnx_policy import OnnxPolicy, is_onnx_name
+from millvib_env.catalog.registry import REGISTRY, baseline_names
+from millvib_env.catalog.tuned import control_config_path, control_entry, load_control_config, oracle_table
 from millvib_env.envs.actions import GainMap
 from millvib_env.envs.batch import env_id_for
 from millvib_env.envs.config import ENV_VERSIONS, EnvConfig
@@ -90,8 +90,8 @@ def build_controller(spec: ControllerSpec, config: EnvConfig | None = None) -> C
 @takes_task()
 def load_controller(name: str, task: str | Task | None = None, config: EnvConfig | None = None,
                     seed: int | None = None, version: str = DEFAULT_VERSION) -> Controller:
-    """A controller by name for `task`: a baseline (`control.registry.REGISTRY`), a shipped agent (agents/<name>),
-    an agent folder path or an exported agent's ONNX graph (``*.onnx``, `control.onnx_policy`: no torch). `seed`
+    """A controller by name for `task`: a baseline (`catalog.registry.REGISTRY`), a shipped agent (agents/<name>),
+    an agent folder path or an exported agent's ONNX graph (``*.onnx``, `catalog.onnx_policy`: no torch). `seed`
     picks a training seed of a multi-seed agent (default: its lowest; a graph holds one).
     `task` defaults to the agent's own (startup for a baseline); an agent trained on another task
     than the one asked for is refused. A baseline runs in environment version `version` with the gains

@@ -1,6 +1,0 @@
-"""Moved to `millvib_env.evaluation.sweep`; this name is the same module, kept for one release."""
-import sys
-
-from millvib_env.evaluation import sweep as _moved
-
-sys.modules[__name__] = _moved
