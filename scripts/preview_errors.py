@@ -4,7 +4,8 @@ preview's, beside the reference (`pid-pf-robust`, which reads no preview) and th
     python scripts/preview_errors.py --task varied --controllers pid-pf-preview dagger-on-pid-pf-preview-varied
 
 Variants (`envs.gauge.GaugeSettings`): exact; measured (the benchmark's default: 1 ms RMS timing, 10 % force
-model, 10 kN noise); each error alone at three times the measured size; all three at three times. The plants are
+model, 10 kN noise); each error alone at three times the measured size; all three at three times; the gauge
+failed (`failed: true`: every change ahead missed, no one switching the feedforward off). The plants are
 N held-out plants (`Task.heldout_plants(N, 0)`); every controller meets the same ones.
 Writes docs/benchmark/v1/preview-errors/<task>.json (atomically) and prints a Markdown table.
 """
@@ -32,6 +33,7 @@ VARIANTS = {
     "force model x3 (30 %)": {**MEASURED, "speed_error": 0.0, "force_model_error": 0.3, "noise_n": 0.0},
     "noise x3 (30 kN)": {**MEASURED, "speed_error": 0.0, "force_model_error": 0.0, "noise_n": 3.0e4},
     "all x3": {**MEASURED, "speed_error": 0.03, "force_model_error": 0.3, "noise_n": 3.0e4},
+    "gauge failed": {**MEASURED, "failed": True},
 }
 REFERENCE = "pid-pf-robust"
 

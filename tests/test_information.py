@@ -77,8 +77,24 @@ def test_the_measured_preview_has_no_eccentricity_unless_asked():
     assert np.any(e.core.preview(np.array([0]))[0] != 0.0)
 
 
+def test_a_failed_gauge_misses_every_change_ahead_and_touches_nothing_else():
+    """`failed: true`: the force preview holds the episode's first reading (every channel zero change, all the
+    episode, force steps or not), the plant, the sensors and the schedule as with a working gauge."""
+    dfl = np.zeros(50)
+    dfl[20:] += 4e4
+    assert np.array_equal(gauge_force(dfl, np.random.default_rng(0), 5e-4, GaugeSettings(failed=True)), np.zeros(50))
+    seeds = [120000, 120001]
+    measured, failed = (_run_zero(_batch(g), seeds, steps=1999) for g in ("measured", {"failed": True}))
+    names = _batch("measured").core.obs_names
+    force = [j for j, n in enumerate(names) if n.startswith("preview_force_")]
+    rest = [j for j in range(len(names)) if j not in force]
+    assert np.array_equal(measured[..., rest], failed[..., rest])
+    assert np.all(failed[..., force] == 0.0) and np.any(measured[..., force] != 0.0)
+
+
 @pytest.mark.parametrize("value, needle", [("foo", "preview_gauge"), ({"speed_error": -1.0}, "speed_error"),
-                                           ({"noise_n": float("nan")}, "noise_n"), ({"lag": 1}, "lag")])
+                                           ({"noise_n": float("nan")}, "noise_n"), ({"lag": 1}, "lag"),
+                                           ({"failed": "yes"}, "failed")])
 def test_a_bad_gauge_is_refused_in_one_line_naming_it(value, needle):
     with pytest.raises(ValueError, match=needle) as err:
         _batch(value)

@@ -13,7 +13,10 @@ its true time and size, and the roll eccentricity's phase. A gauge does not:
 * **noise.** The gauge's noise through the force model: white, `noise_n` N RMS on every loop sample's predicted
   force (10 kN at the defaults: 2 um of entry thickness at 5 MN/mm of plasticity);
 * **eccentricity.** The rolls' eccentricity is the stand's own and never passes the gauge: not in the preview
-  (``eccentricity: true`` puts the exact one back).
+  (``eccentricity: true`` puts the exact one back);
+* **a failed gauge** (``failed: true``, off in ``measured``): the gauge's signal is lost for the whole episode
+  and the preview holds the force it read at the episode's start: every change ahead is missed, no noise. What a
+  controller that reads the preview does when its gauge fails and nobody switches its feedforward off.
 
 The pass schedule's set-point course stays exact: it is the controller's own.
 
@@ -43,13 +46,14 @@ class GaugeSettings:
     force_model_error: float = 0.1    # each force change's relative error, RMS (hardness not measured)
     noise_n: float = 1.0e4            # the gauge's noise as force, RMS per loop sample (N)
     eccentricity: bool = False        # the rolls' eccentricity in the preview (a gauge never sees it)
+    failed: bool = False              # the gauge's signal lost: the preview holds the episode's first reading
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "eccentricity":
+            if f.name in ("eccentricity", "failed"):
                 if not isinstance(v, (bool, np.bool_)):
-                    raise ValueError(f"observation.preview_gauge.eccentricity = {shown(v)} is invalid: true or false")
+                    raise ValueError(f"observation.preview_gauge.{f.name} = {shown(v)} is invalid: true or false")
                 continue
             limit = {"transport_s": 10.0, "speed_error": 0.5, "force_model_error": 1.0, "noise_n": 1.0e6}[f.name]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not 0 <= v <= limit:
@@ -83,9 +87,12 @@ def gauge_settings(value: Any) -> GaugeSettings | None:
 def gauge_force(dfl: np.ndarray, rng: np.random.Generator, dt_s: float, g: GaugeSettings) -> np.ndarray:
     """The force course (N, one value per loop sample, as `dfl`) a gauge with errors `g` predicts for the
     episode whose true force-step course is `dfl`: its changes shifted by the timing error and scaled by the model
-    error, plus noise. Draws, in order: the speed error, one model error per change, the noise."""
+    error, plus noise. Draws, in order: the speed error, one model error per change, the noise. A failed gauge
+    (`GaugeSettings.failed`) predicts the first value throughout and draws nothing."""
     dfl = np.asarray(dfl, float)
     n = len(dfl)
+    if g.failed:
+        return np.full(n, dfl[0])
     shift = int(round(g.transport_s * g.speed_error * rng.standard_normal() / dt_s))
     jumps = np.diff(dfl)
     at = np.flatnonzero(jumps)
