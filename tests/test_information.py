@@ -252,6 +252,10 @@ def test_the_benchmark_measures_the_preview_of_its_readers_and_can_give_it_exact
     assert measured["records"]["pid-pf-robust"] == exact["records"]["pid-pf-robust"]
     assert measured["records"]["pid-pf-preview"] != exact["records"]["pid-pf-preview"]
     assert copy.deepcopy(exact["controllers"]["pid-pf-preview"]["information"]) == "loop+force+schedule+gauge"
+    failed = run_benchmark(["pid-pf-robust", "pid-pf-preview"], preview="failed", **kw)
+    assert failed["preview"] == "failed" and failed["records"]["pid-pf-robust"] == exact["records"]["pid-pf-robust"]
+    assert failed["records"]["pid-pf-preview"] not in (measured["records"]["pid-pf-preview"],
+                                                       exact["records"]["pid-pf-preview"])
 
 
 def test_the_benchmarks_preview_overrides_what_a_readers_own_settings_say():

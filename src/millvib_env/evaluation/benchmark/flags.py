@@ -56,11 +56,12 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                    help="the controller every other is paired with on the same plants (the table's 'vs' columns, "
                         "paired_plane.png, the JSON's 'paired'); default pid-pf-robust, the strongest deployable "
                         "classical controller; run even where --controllers leaves it out")
-    p.add_argument("--preview", default="measured", choices=["measured", "exact"],
+    p.add_argument("--preview", default="measured", choices=["measured", "exact", "failed"],
                    help="the preview every controller that reads one gets (the students, pid-pf-preview): measured, "
                         "as an entry gauge gives it (timing, force-model and noise errors, no eccentricity: "
-                        "docs/environments.md; default), or exact, the plant's own course. mpc-preview always knows "
-                        "the exact course")
+                        "docs/environments.md; default), exact, the plant's own course, or failed, the gauge's "
+                        "signal lost for the episode (every force change ahead missed; the schedule's preview "
+                        "stays). mpc-preview always knows the exact course")
     p.add_argument("--no-scenarios", action="store_true", help="skip the named scenarios (startup only)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="spread controllers x episode chunks over Ray tasks: a local cluster, or the running cluster "

@@ -17,6 +17,7 @@ from millvib_env.catalog.information import from_env_kwargs
 from millvib_env.catalog.registry import REFERENCE, REGISTRY, ROOM_BOUNDS, baseline_names
 from millvib_env.envs.batch import env_id_for, env_version
 from millvib_env.tasks import Task
+from millvib_env.evaluation.benchmark.protocol import PREVIEW_SETTINGS
 
 
 
@@ -148,5 +149,7 @@ def _reads_preview(ctrl: Controller) -> bool:
 
 def _preview_kwargs(ctrls: Mapping[str, Controller], preview: str) -> dict[str, dict]:
     """The environment keywords that give each preview reader the benchmark's preview, whatever its own card says
-    (a student that learned on the measured preview runs on the exact one under ``--preview exact``)."""
-    return {n: {"observation": {"preview_gauge": preview}} for n, c in ctrls.items() if _reads_preview(c)}
+    (a student that learned on the measured preview runs on the exact one under ``--preview exact``; `preview` one
+    of `PREVIEW_GAUGES`, given as `PREVIEW_SETTINGS` says)."""
+    return {n: {"observation": {"preview_gauge": PREVIEW_SETTINGS[preview]}} for n, c in ctrls.items()
+            if _reads_preview(c)}

@@ -19,7 +19,10 @@ from millvib_env.evaluation.stats import METRICS, cvar, interval, iqm
 
 
 #: how a benchmark gives a preview to the controllers that read one (`envs.gauge`), and its default
-PREVIEW_GAUGES = ("measured", "exact")
+PREVIEW_GAUGES = ("measured", "exact", "failed")
+#: each `PREVIEW_GAUGES` choice as the readers' ``observation.preview_gauge`` (`envs.gauge`): "failed" is the
+#: measured preview whose gauge has lost its signal for the episode (every force change ahead missed)
+PREVIEW_SETTINGS = {"measured": "measured", "exact": "exact", "failed": {"failed": True}}
 DEFAULT_PREVIEW_GAUGE = "measured"
 #: held-out plants per controller: the quick run (one seed per agent) and the full protocol (--all-seeds)
 DEFAULT_EPISODES = 40

@@ -42,7 +42,8 @@ def run_benchmark(controllers: Sequence[str | Controller] | None = None, *, task
     of your own (a `control.base.Controller` with a new `name`, its `env_id`, `env_kwargs` and `predict`) may stand
     in the list beside the names: it runs in its own environment, in this process (not with `ray`), and is
     compared as any other (docs/benchmark.md). Every controller that reads a preview through its observation reads
-    it as `preview` says: "measured" (the default: an entry gauge's errors, `envs.gauge`) or "exact". Each
+    it as `preview` says: "measured" (the default: an entry gauge's errors, `envs.gauge`), "exact" or "failed" (the
+    gauge's signal lost for the episode). Each
     controller's information set, and each set's classical controller, bound and room, are in the result
     (`evaluation.verdict`)."""
 
