@@ -359,6 +359,26 @@ def test_student_actions(benchmark):
 
 
 @pytest.mark.benchmark(group="pieces")
+def test_distill_fit_steps(benchmark):
+    """100 Adam steps of a distillation's fit (`training.distill._fit`: batches of 1024 on the rolling student's
+    256 x 256 network, 73 inputs, one torch thread), what a seed of `millvib distill --task rolling` spends two
+    thirds of its time on (docs/performance.md)."""
+    import torch
+
+    from millvib_env.catalog.factory import load_controller
+    from millvib_env.training.distill import _fit
+
+    torch.set_num_threads(1)
+    student = load_controller("dagger-on-pid-pf-preview-rolling", "rolling")
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(102400, student.policy.observation_space.shape[0])).astype(np.float32)
+    Y = rng.uniform(-1, 1, size=(102400, 1)).astype(np.float32)
+    benchmark.pedantic(_fit, args=(student.model, X, Y, student.obs_stats, 1, 0),
+                       kwargs={"normalized": True}, rounds=3, warmup_rounds=1)
+    benchmark.extra_info["samples"] = len(X)
+
+
+@pytest.mark.benchmark(group="pieces")
 def test_normalize_a_pool(benchmark):
     """A distillation's pool of 650 000 observations of 73 channels normalised (`ObsStats.normalize`)."""
     from millvib_env.catalog.normalization import ObsStats
