@@ -159,6 +159,24 @@ def test_the_package_imports_its_own_modules_at_the_top_unless_laziness_is_the_p
     assert not found, found
 
 
+#: what reads as a timing of a particular day ("3x slower", "about 2 s", "took 12 min", "3.1 CPU-s")
+TIMING_CLAIMS = (r"\b\d+(\.\d+)?\s?(x|times)\s(faster|slower)\b",
+                 r"\babout \d+(\.\d+)?\s?(s|ms|seconds|minutes|CPU-s)\b",
+                 r"\b(took|takes|take) (about )?\d+(\.\d+)?\s?(s|ms|seconds|minutes|min|CPU-s)\b",
+                 r"\b\d+(\.\d+)?\s?CPU-s\b")
+
+
+def test_timings_live_in_the_performance_page_not_in_the_code_or_the_readme():
+    """A timing goes stale with the machine and the day: it stands in docs/performance.md beside its command and
+    date, and the code's docstrings and comments and the README's prose point there instead."""
+    found = []
+    for path in [*sorted((ROOT / "src").rglob("*.py")), ROOT / "README.md"]:
+        for n, line in enumerate(path.read_text().splitlines(), 1):
+            found += [f"{path.relative_to(ROOT)}:{n}: {line.strip()[:100]}" for pattern in TIMING_CLAIMS
+                      if re.search(pattern, line)]
+    assert not found, found
+
+
 def test_no_module_of_the_package_passes_600_lines_and_no_function_80():
     """The house's sizes: a module a reader takes in at one sitting, a function on two screens (the plant's
     `plant_rhs`, the kernel's hot path, included: docs/performance.md says why it stays one function)."""

@@ -39,12 +39,12 @@ def _process_defaults() -> None:
     the kernel's transparent huge pages are on request with compaction on request (the setting of many Linux
     machines), a fault in such an array may compact memory first. The commands write their large arrays (a map's
     runs: 141 MB for `reproduce`'s motion map) once and read them a few times: on this project's 2-core machine
-    that array cost 0.7-1.2 s of kernel time with huge pages and 0.04 s without (docs/performance.md).
+    that array cost far more kernel time with huge pages than without (docs/performance.md).
 
     ``OPENBLAS_NUM_THREADS=1``: numpy's BLAS multiplies matrices of at most a few hundred rows here (the MPC's
     condensed QP, linearisations, Riccati equations), where a second thread gives nothing, and once woken it spins
-    on the other core: 0.2-0.3 of the main job's 3.0-3.1 CPU-s, and in worker processes (`--jobs`, which inherit
-    the setting) it takes the cores the other workers run on. The plant's threads are numba's and torch's own."""
+    on the other core (a measurable part of the main job's CPU time: docs/performance.md), and in worker processes
+    (`--jobs`, which inherit the setting) it takes the cores the other workers run on. The plant's threads are numba's and torch's own."""
     os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 

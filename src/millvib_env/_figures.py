@@ -1,9 +1,9 @@
 """Figures of many equal panels (the benchmark's planes, the sweep's maps) placed at fixed margins.
 
 matplotlib's constrained layout measures every text of a figure before it draws it: on a 4 x 3 grid of log-scaled
-scatter panels that pass is about 40 % of the figure's cost. The panels here all carry the same things (a title
-of up to two lines, axis labels, log tick labels such as 2 x 10^6), so their margins are known in advance and
-`panel_grid` places them in inches: the same picture, drawn once.
+scatter panels that pass is a large part of the figure's cost (docs/performance.md). The panels here all carry the
+same things (a title of up to two lines, axis labels, log tick labels such as 2 x 10^6), so their margins are known
+in advance and `panel_grid` places them in inches: the same picture, drawn once.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ class _PyLoader(_NoRepeatedKeys, yaml.SafeLoader):
 
 class _CLoader(_NoRepeatedKeys, getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: ignore[misc]
     """libyaml's parser (C): the same documents, the same resolver and constructor (PyYAML's, in Python), so the
-    same data; it reads a config about 20x faster. They differ on damaged text only: libyaml takes a tab
+    same data, read faster (docs/performance.md). They differ on damaged text only: libyaml takes a tab
     inside a plain scalar, which the schema then refuses as a value of the wrong type."""
 
 

@@ -175,9 +175,9 @@ def _start_server(ctx) -> bool:
 
 def start_workers(fn: Callable, preload: Sequence[str] = ()) -> None:
     """Start the fork server that `run_jobs(fn, ..., preload=preload)`'s local workers will come from, without
-    waiting for it: it imports the package and `preload` (torch and SB3 for agents: about 2 s) while this process
-    goes on with its own work, and the pool then finds it running (the same modules: no restart). Nothing where
-    the platform has no fork server."""
+    waiting for it: it imports the package and `preload` (torch and SB3 for agents: the longest of its imports,
+    docs/performance.md) while this process goes on with its own work, and the pool then finds it running (the
+    same modules: no restart). Nothing where the platform has no fork server."""
     _start_server(_pool_context(fn, preload))
 
 

@@ -130,7 +130,7 @@ def _extension_bins(y: np.ndarray, odd: bool, bins: np.ndarray, workers: int = 1
     X_k = exp(i theta_k) DCT-II(y)_k and X_k = -i exp(i theta_k) DST-II(y)_(k-1) (scipy's unnormalised
     transforms; X_0 of an odd and X_n of an even extension are 0). The same numbers as `sfft.rfft` of the
     extension in exact arithmetic, within rounding in floating point (tests/test_severity.py), and
-    3-4 times faster at the environments' record lengths, 10,001 and 9,001 samples, whose extensions' lengths
+    faster at the environments' record lengths, 10,001 and 9,001 samples, whose extensions' lengths
     (2 x 73 x 137, 2 x 9001) are slow for an FFT (docs/performance.md)."""
     n = y.shape[1]
     twiddle = np.exp(1j * np.pi * bins / (2 * n))

@@ -13,7 +13,7 @@
   ``NUMBA_THREADING_LAYER=workqueue`` chooses the latter where a forked child must run large
   batches itself.
 * Idle OpenMP threads sleep (``OMP_WAIT_POLICY=PASSIVE``, set when the package is imported unless
-  the user set a policy): spinning threads made a loaded machine step 3x slower than serial.
+  the user set a policy): spinning threads made a loaded machine step slower than serial (docs/performance.md).
 * `millvib train` runs the plant serially (MILLVIB_NUM_THREADS unset means 1 there): the learner
   takes most of the wall time and idle numba threads slow torch.
 """

@@ -332,7 +332,7 @@ class AgentPolicy(Controller):
 
 class _NoOptimizer:
     """What an acting policy gets for an optimiser (`acting_policy`): SB3's policies build theirs when they are
-    made, and torch's optimisers import `torch._dynamo` at a process's first (about 1 s)."""
+    made, and torch's optimisers import `torch._dynamo` at a process's first (a second's work: docs/performance.md)."""
 
     def __init__(self, params, **kwargs):
         pass

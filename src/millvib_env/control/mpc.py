@@ -204,8 +204,8 @@ def _riccati_tail(Ad: np.ndarray, Bd: np.ndarray, Q: np.ndarray, R: float, n: in
 def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float = 0.0) -> MPCModel:
     """The condensed QP of `settings` for the plant `params` at set-point `xd`, sampled at `dt_s`. Built with BLAS
     on one thread (`one_blas_thread`): its products are a few hundred rows, and BLAS's threads, woken at every
-    build (the startup ramp rebuilds a model every few samples), spun on the other core for a quarter of a
-    benchmark's CPU time and slowed its worker processes by half."""
+    build (the startup ramp rebuilds a model every few samples), spun on the other cores and slowed the
+    benchmark's worker processes (docs/performance.md)."""
     instance("params", params, MillParams, "a MillParams")
     instance("settings", settings, MPCSettings, "an MPCSettings")
     dt_s = real("dt_s", dt_s, lo=0.0, lo_open=True, hi=0.1)

@@ -32,7 +32,7 @@ BOOTSTRAP_SEED = 12345
 
 
 def load_library() -> None:
-    """Import scipy.stats now (about 0.4 s: scipy builds its functions' docstrings at import), so that a caller
+    """Import scipy.stats now (scipy builds its functions' docstrings at import: docs/performance.md), so that a caller
     with time to spare (a benchmark whose worker processes are starting) does not pay it at its first interval."""
     import scipy.stats  # noqa: F401
 

@@ -5,7 +5,7 @@
 * ``method="reference"``: LSODA at tight tolerances. By default ODEPACK's LSODA runs each set-point
   segment whole in compiled code (`scipy.integrate.odeint`), calling the compiled right-hand side;
   ``ivp_method`` names a `scipy.integrate.solve_ivp` method instead ("LSODA", the same solver driven
-  a step at a time from Python, 5-10x slower; "RK45", the paper's ode45; Radau, BDF, DOP853, RK23), or
+  a step at a time from Python, slower: docs/performance.md; "RK45", the paper's ode45; Radau, BDF, DOP853, RK23), or
   "RK45-compiled": scipy's RK45 step for step in compiled code (`rk45.py`, the solver study's method).
 
 Both call the same right-hand side (`model.plant_rhs`), sample on the same grid

@@ -6,7 +6,7 @@ step, FSAL (3 new right-hand-side evaluations per step), error per component aga
 was chosen by measurement against a tight LSODA reference over the paper's cases and the
 unstable corner (`scripts/integrator_study.py`): fixed-step RK4 needs h <= 6e-6 s at high KP and
 still loses the limit cycles (the LuGre bristle rate sigma0 |v| / g(v) reaches 8e5 1/s there),
-Dormand-Prince 5(4) is close on smooth cases but 1.6x slower in the limit cycles, and a
+Dormand-Prince 5(4) is close on smooth cases but slower in the limit cycles (docs/integrator_study.md), and a
 Rosenbrock 2(3) pays more for its Jacobian than it saves.
 
 Samples: the kernels write the state at the sample times ``t_base + k dt_s`` that fall in each
