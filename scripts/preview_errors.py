@@ -36,6 +36,28 @@ VARIANTS = {
     "gauge failed": {**MEASURED, "failed": True},
 }
 REFERENCE = "pid-pf-robust"
+#: the classical controller of the readers' information: every other reader is paired with it where it was run
+CLASSICAL = "pid-pf-preview"
+
+
+def _against_classical(episodes: dict, names: list[str], rows: dict) -> dict[str, list[str]]:
+    """Each other reader against `CLASSICAL` (where it was run), per variant: the paired relative difference of the
+    mean and of the CVaR-20 with their 95 % intervals (`evaluation.stats.paired_difference`), stored in `rows`
+    (``vs_classical``) and returned as table cells."""
+    from millvib_env.evaluation.stats import paired_difference
+
+    if CLASSICAL not in names:
+        return {}
+    cells: dict[str, list[str]] = {}
+    for name in (n for n in names if n != CLASSICAL):
+        cells[name] = []
+        for label in VARIANTS:
+            d = paired_difference([episodes[(name, label)]], episodes[(CLASSICAL, label)])
+            rows[name][label]["vs_classical"] = {k: d[k] for k in ("cost_diff_rel", "ci", "cvar20_diff_rel",
+                                                                   "cvar20_ci")}
+            cells[name].append(f"{d['cost_diff_rel']:+.1%} [{d['ci'][0]:+.1%}, {d['ci'][1]:+.1%}]; "
+                               f"{d['cvar20_diff_rel']:+.1%} [{d['cvar20_ci'][0]:+.1%}, {d['cvar20_ci'][1]:+.1%}]")
+    return cells
 
 
 def main(argv=None) -> int:
@@ -49,6 +71,7 @@ def main(argv=None) -> int:
     seeds = t.heldout_plants(args.plants, 0)
     ref = np.array([r["cost"] for r in run_episodes(load_controller(REFERENCE, t), seeds, task=t)])
     rows: dict = {REFERENCE: {"reads_preview": False, "cost_mean": float(ref.mean())}}
+    episodes: dict = {}  # each reader's costs per variant, for the pairs against the classical preview controller
     for name in args.controllers:
         ctrl = load_controller(name, t)
         if "gauge" not in from_env_kwargs(ctrl.env_kwargs):
@@ -57,12 +80,14 @@ def main(argv=None) -> int:
         for label, gauge in VARIANTS.items():
             cost = np.array([r["cost"] for r in run_episodes(
                 ctrl, seeds, task=t, env_kwargs={"observation": {"preview_gauge": gauge}})])
+            episodes[(name, label)] = cost
             worse = cost / ref - 1.0
             row[label] = {"cost_mean": float(cost.mean()), "vs_reference": float(cost.mean() / ref.mean() - 1.0),
                           "plants_worse_than_reference_by_20pct": int(np.sum(worse > 0.2))}
             print(f"{name:40s} {label:24s} {cost.mean():.4f} ({row[label]['vs_reference']:+.1%} vs reference)",
                   file=sys.stderr)
         rows[name] = row
+    pairs = _against_classical(episodes, args.controllers, rows)
     out = Path(args.out or f"docs/benchmark/v1/preview-errors/{t.name}.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, json.dumps({"task": t.name, "plants": [int(s) for s in seeds], "variants": VARIANTS,
@@ -73,6 +98,12 @@ def main(argv=None) -> int:
     for name in args.controllers:
         cells = [f"{rows[name][v]['cost_mean']:.3f} ({rows[name][v]['vs_reference']:+.1%})" for v in VARIANTS]
         print(f"| {name} | {ref.mean():.3f} | " + " | ".join(cells) + " |")
+    if pairs:
+        print(f"\nAgainst {CLASSICAL}, paired on the same plants (mean [95 % interval]; CVaR-20 [interval]):\n")
+        print("| controller | " + " | ".join(VARIANTS) + " |")
+        print("|---|" + "---|" * len(VARIANTS))
+        for name, cells in pairs.items():
+            print(f"| {name} | " + " | ".join(cells) + " |")
     print(f"wrote {out}", file=sys.stderr)
     return 0
 
