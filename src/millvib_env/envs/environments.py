@@ -335,7 +335,8 @@ class ValveEnv(MillVibEnv):
     episode's own course, exact (eccentricity included); ``observation.preview_gauge: measured``
     gives it as a gauge measures it (`envs.gauge`: a timing error from the strip speed's error,
     1 ms RMS; a 10 % force-model error per change; 10 kN RMS of noise; no eccentricity; a mapping
-    sets each, and ``failed: true`` loses the gauge's signal for the episode), from the episode's own gauge stream. The set-point's course is exact either way.
+    sets each, and ``failed: true`` loses the gauge's signal for the episode), from the episode's own
+    gauge stream. The set-point's course is exact either way.
     Optional history (``observation.history_samples``, a list of lags k in agent steps): per k, the
     measured channels (error, velocity, acceleration, pressure, last action, PID command, load force,
     those present) as they were k steps ago, appended after the others (names ``<channel>_lag_<k>``; an
