@@ -44,7 +44,8 @@ def _process_defaults() -> None:
     ``OPENBLAS_NUM_THREADS=1``: numpy's BLAS multiplies matrices of at most a few hundred rows here (the MPC's
     condensed QP, linearisations, Riccati equations), where a second thread gives nothing, and once woken it spins
     on the other core (a measurable part of the main job's CPU time: docs/performance.md), and in worker processes
-    (`--jobs`, which inherit the setting) it takes the cores the other workers run on. The plant's threads are numba's and torch's own."""
+    (`--jobs`, which inherit the setting) it takes the cores the other workers run on. The plant's threads are
+    numba's and torch's own."""
     os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
