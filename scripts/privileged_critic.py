@@ -160,12 +160,13 @@ class SplitRates(PPO):
 ACTOR_KEYS = ("mlp_extractor.policy_net", "action_net", "log_std")
 
 
-def actor_into_student(model, student: AgentPolicy, folder: Path) -> None:
-    """An agent folder of the student's card and statistics with the fine-tuned actor in the student's network."""
+def actor_into_student(model, student: Path, folder: Path) -> None:
+    """An agent folder of the student's (folder `student`) card and statistics with the fine-tuned actor in the
+    student's network."""
     if folder.exists():
         shutil.rmtree(folder)
-    shutil.copytree(student_folder, folder)
-    net = PPO.load(student_folder / "model.zip", device="cpu")
+    shutil.copytree(student, folder)
+    net = PPO.load(student / "model.zip", device="cpu")
     own = model.policy.state_dict()
     state = net.policy.state_dict()
     state.update({k: v for k, v in own.items() if k.startswith(ACTOR_KEYS)})
@@ -176,15 +177,17 @@ def actor_into_student(model, student: AgentPolicy, folder: Path) -> None:
 class Scored(BaseCallback):
     """The critic's warm-up, then the actor's steps; the actor scored every `every` steps."""
 
-    def __init__(self, warmup: int, actor_lr: float, every: int, student: AgentPolicy, out: Path, episodes: int):
+    def __init__(self, warmup: int, actor_lr: float, every: int, student: Path, out: Path, episodes: int):
         super().__init__()
+        self.start = time.time()
         self.warmup, self.actor_lr, self.every, self.student, self.out = warmup, actor_lr, every, student, out
         self.episodes, self.next, self.curve, self.best = episodes, every, [], np.inf
 
     def score(self) -> float:
         actor_into_student(self.model, self.student, self.out / "now")
         cost = validation_result(self.out / "now", episodes=self.episodes)["cost_mean"]
-        self.curve.append({"steps": int(self.num_timesteps), "cost_mean": cost, "wall_s": round(time.time() - T0),
+        self.curve.append({"steps": int(self.num_timesteps), "cost_mean": cost,
+                           "wall_s": round(time.time() - self.start),
                            "explained_variance": round(getattr(self.model, "explained", float("nan")), 4)})
         if cost < self.best:
             self.best = cost
@@ -222,7 +225,6 @@ def confirm(student: Path, tuned: Path, n: int) -> int:
 
 
 def main(argv=None) -> int:
-    global student_folder, T0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("student")
     p.add_argument("--steps", type=int, default=600_000)
@@ -247,7 +249,6 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.confirm:
         return confirm(Path(a.student), Path(a.out) / "best", a.confirm)
-    T0 = time.time()
     torch.set_num_threads(1)
     student_folder = Path(a.student)
     student = AgentPolicy(student_folder)
@@ -271,7 +272,7 @@ def main(argv=None) -> int:
     critic = [p for n, p in model.policy.named_parameters() if not n.startswith(ACTOR_KEYS)]
     model.policy.optimizer = torch.optim.Adam([{"params": actor, "actor": True}, {"params": critic}], eps=1e-5)
     model.critic_lr = a.critic_lr
-    cb = Scored(a.warmup, a.actor_lr, a.eval_every, student, out, a.episodes)
+    cb = Scored(a.warmup, a.actor_lr, a.eval_every, student_folder, out, a.episodes)
     cb.model = model
     start = cb.score()  # the student itself, through the same path
     print(f"start (the student): {start:.5f}", flush=True)
@@ -279,9 +280,6 @@ def main(argv=None) -> int:
     print(json.dumps({"start": start, "best": cb.best, "curve": cb.curve}), flush=True)
     return 0
 
-
-student_folder = Path()
-T0 = 0.0
 
 if __name__ == "__main__":
     sys.exit(main())
