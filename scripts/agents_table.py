@@ -16,6 +16,8 @@ def _shipped(selected: dict) -> str:
     distilled student's iteration."""
     if "iteration" in selected:
         return f"iteration {selected['iteration']}"
+    if "steps" in selected:  # `millvib finetune`: the steps at the score it kept
+        return f"{selected['steps'] / 1e6:g} M"
     return "start" if selected["timesteps"] == 0 else f"{selected['timesteps'] / 1e6:g} M"
 
 
@@ -30,7 +32,8 @@ def main() -> None:
         notes = sorted({c["note"] for c in cards if c.get("note")})
         shipped = ", ".join(_shipped(x["selected"]) for x in cards if x.get("selected")) or "last"
         c = cards[0]
-        algo = "DAgger (distill)" if "iteration" in c.get("selected", {}) else c["algo"]
+        algo = ("DAgger (distill)" if "iteration" in c.get("selected", {})
+                else "ppo (finetune)" if "steps" in c.get("selected", {}) else c["algo"])
         if not notes and c.get("trained_by"):
             notes = [c["trained_by"]]
         print(f"| {name} | {c.get('task', 'startup')} | {algo} | {c['env_id'].replace('MillVib-', '')} | "

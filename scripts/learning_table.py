@@ -7,7 +7,9 @@ what the best learned controller of that set takes of it, from each task's saved
 Columns: the preview set's classical controller (`pid-pf-preview`) against the reference; the room above it
 (`(classical - bound) / classical`, mean and CVaR-20, paired 95 % intervals); the best learned row of that set
 (the cheapest on the mean) against it, on the mean, the CVaR-20 and severity, and the share of the room it takes
-(its mean gain over the room's mean); the `loop` set's learned rows (the RL gain schedulers) against theirs.
+(its mean gain over the room's mean); the agents trained by reinforcement learning against the classical
+controller of their own set: the `loop` set's gain schedulers and the preview set's PPO fine-tunings
+(`millvib finetune`), each on the mean.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ def main(argv: list[str]) -> int:
     folder = Path(argv[0]) if argv else None
     print("| task | `pid-pf-preview` vs `pid-pf-robust`, mean | room above it, mean / CVaR-20 | best learned of the "
           "preview set | vs `pid-pf-preview`: mean / CVaR-20 / severity | share of the room (mean) | "
-          "`loop` set: RL gain schedulers vs its classical, mean |")
+          "RL agents vs the classical controller of their set, mean |")
     print("|---|---|---|---|---|---|---|")
     for task in TASKS:
         path = folder / f"{task}.json" if folder else ROOT / "docs" / "benchmark" / "v1" / task / "benchmark.json"
@@ -57,7 +59,7 @@ def main(argv: list[str]) -> int:
         else:
             gain, share = "-", "-"
         loop = []
-        for n in learned(r, "loop"):
+        for n in learned(r, "loop") + [n for n in rows if n.startswith(("ppo-", "sac-"))]:
             s = c[n]["same_information"]
             loop.append(f"{n} {pct(s['cost']['cost_diff_rel'], s['cost']['ci'])} ({s['classical']})")
         print(f"| {task} | {ref} | {room} | {best or '-'} | {gain} | {share} | {'; '.join(loop) or '-'} |")

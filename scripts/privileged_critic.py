@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from gymnasium import spaces
-from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.running_mean_std import RunningMeanStd
@@ -38,6 +37,7 @@ from millvib_env.catalog.agents import AgentPolicy
 from millvib_env.envs.observation import OBS_SCALES, slog
 from millvib_env.envs.vec_env import make_vec_env
 from millvib_env.params import MillParams
+from millvib_env.training.finetune import actor_into_student, copy_actor, split_optimizer, split_rates_ppo
 from millvib_env.training.train import validation_result
 
 #: the force course's look-aheads the critic reads (control samples, 0.5 ms each): to 100 ms
@@ -139,41 +139,6 @@ class AsymmetricPolicy(ActorCriticPolicy):
                                       self.activation_fn)
 
 
-class SplitRates(PPO):
-    """PPO whose actor and critic take steps of their own size (the actor's 0 during the critic's warm-up)."""
-
-    actor_lr = 0.0
-    critic_lr = 3e-4
-    explained = float("nan")
-
-    def train(self) -> None:
-        super().train()
-        self.explained = float(self.logger.name_to_value.get("train/explained_variance", float("nan")))
-
-    def _update_learning_rate(self, optimizers) -> None:
-        self.logger.record("train/actor_lr", self.actor_lr)
-        for opt in optimizers if isinstance(optimizers, list) else [optimizers]:
-            for group in opt.param_groups:
-                group["lr"] = self.actor_lr if group.get("actor") else self.critic_lr
-
-
-ACTOR_KEYS = ("mlp_extractor.policy_net", "action_net", "log_std")
-
-
-def actor_into_student(model, student: Path, folder: Path) -> None:
-    """An agent folder of the student's (folder `student`) card and statistics with the fine-tuned actor in the
-    student's network."""
-    if folder.exists():
-        shutil.rmtree(folder)
-    shutil.copytree(student, folder)
-    net = PPO.load(student / "model.zip", device="cpu")
-    own = model.policy.state_dict()
-    state = net.policy.state_dict()
-    state.update({k: v for k, v in own.items() if k.startswith(ACTOR_KEYS)})
-    net.policy.load_state_dict(state)
-    net.save(folder / "model.zip")
-
-
 class Scored(BaseCallback):
     """The critic's warm-up, then the actor's steps; the actor scored every `every` steps."""
 
@@ -209,18 +174,10 @@ class Scored(BaseCallback):
 
 def confirm(student: Path, tuned: Path, n: int) -> int:
     """The student and the fine-tuned actor on validation plants 40 .. 40 + n (not those the scores selected on)."""
-    from millvib_env.evaluation.evaluate import run_episodes
-    from millvib_env.evaluation.stats import paired_difference
+    from validation_pairs import pair  # scripts/validation_pairs.py, beside this one
 
     base = AgentPolicy(student)
-    first = base.task.seeds["validation"].start + 40
-    seeds = list(range(first, first + n))
-    costs = [np.array([r["cost"] for r in run_episodes(AgentPolicy(f), seeds, task=base.task)])
-             for f in (student, tuned)]
-    d = paired_difference([costs[1]], costs[0])
-    print(json.dumps({"plants": f"{seeds[0]}-{seeds[-1]}", "student": float(costs[0].mean()),
-                      "fine-tuned": float(costs[1].mean()), "diff_rel": d["cost_diff_rel"], "ci": d["ci"],
-                      "cvar20_diff_rel": d["cvar20_diff_rel"], "cvar20_ci": d["cvar20_ci"]}))
+    print(json.dumps(pair(base, AgentPolicy(tuned), base.task, skip=40, plants=n)))
     return 0
 
 
@@ -261,16 +218,11 @@ def main(argv=None) -> int:
     src = student.model.policy
     kwargs = dict(n_actor=env.observation_space.shape[0] - env.venv.n_priv, activation_fn=src.activation_fn,
                   log_std_init=float(src.log_std.detach().mean()))
-    model = SplitRates(AsymmetricPolicy, env, n_steps=a.n_steps, batch_size=1024, n_epochs=a.n_epochs,
+    model = split_rates_ppo()(AsymmetricPolicy, env, n_steps=a.n_steps, batch_size=1024, n_epochs=a.n_epochs,
                        gamma=a.gamma, gae_lambda=0.95, clip_range=a.clip, target_kl=a.target_kl, ent_coef=0.0,
                        seed=a.seed, device="cpu", policy_kwargs=kwargs, verbose=0)
-    own = src.state_dict()
-    state = model.policy.state_dict()
-    state.update({k: v for k, v in own.items() if k.startswith(ACTOR_KEYS)})
-    model.policy.load_state_dict(state)
-    actor = [p for n, p in model.policy.named_parameters() if n.startswith(ACTOR_KEYS)]
-    critic = [p for n, p in model.policy.named_parameters() if not n.startswith(ACTOR_KEYS)]
-    model.policy.optimizer = torch.optim.Adam([{"params": actor, "actor": True}, {"params": critic}], eps=1e-5)
+    copy_actor(src, model.policy)
+    split_optimizer(model)
     model.critic_lr = a.critic_lr
     cb = Scored(a.warmup, a.actor_lr, a.eval_every, student_folder, out, a.episodes)
     cb.model = model

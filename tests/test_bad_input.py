@@ -538,20 +538,37 @@ def test_the_command_lines_parser_shows_the_modules_docstrings_without_loading_t
 
     import millvib_env.catalog.export as export
     import millvib_env.training.distill as distill
+    import millvib_env.training.finetune as finetune
     import millvib_env.tuning.baselines as baselines
     from millvib_env.cli import _module_doc
     from millvib_env.tuning import ENTRIES
 
-    for module in (baselines, distill, export):
+    for module in (baselines, distill, finetune, export):
         assert _module_doc(module.__name__) == module.__doc__
     assert ENTRIES == tuple(baselines.TUNERS)
     code = ("import sys\n"
             "from millvib_env.cli import build_parser\n"
             "build_parser()\n"
             "print(sorted(m for m in ('millvib_env.tuning.baselines', 'millvib_env.training.distill', "
-            "'millvib_env.catalog.export', 'millvib_env.catalog.factory') if m in sys.modules))\n")
+            "'millvib_env.training.finetune', 'millvib_env.catalog.export', 'millvib_env.catalog.factory') "
+            "if m in sys.modules))\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert run.stdout.strip() == "[]", run.stderr
+
+
+def test_finetunes_bad_numbers_and_a_folder_without_an_agent_are_refused_in_one_line(capsys, tmp_path):
+    """`millvib finetune`: a warm-up as long as the run, a folder that holds no agent: exit status 2, one line naming
+    the field and what is allowed, nothing written."""
+    from millvib_env.cli import main as cli_main
+
+    student = "agents/dagger-on-pid-pf-preview-rolling/seed-0"
+    for argv, field in [([student, "--warmup", "600000"], "warmup = 600000"),
+                        ([student, "--actor-lr", "0"], "actor_lr = 0"),
+                        ([str(tmp_path), "--steps", "1000", "--warmup", "0"], "student = ")]:
+        assert cli_main(["finetune", *argv, "--save-dir", str(tmp_path / "out"), "--quiet"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and field in err[0] and "is invalid" in err[0], err
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_set_point_outside_the_cylinders_stroke_is_refused_in_one_line(capsys):

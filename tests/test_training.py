@@ -381,3 +381,61 @@ def test_init_from_starts_rl_at_a_distilled_student_and_refuses_another_network(
     with pytest.raises(ValueError, match="its network differs"):
         train("ppo", "MillVib-Valve-v1", task="varied", seed=0, config=str(cfg), log_dir=str(tmp_path / "runs2"),
               progress=False, init_from="dagger-on-pid-pf-preview-varied")
+
+
+def test_episode_cost_reward_weighs_a_period_by_what_it_adds_to_the_episodes_cost():
+    """`EpisodeCostReward`: on a steady signal the config's reward; a loud period after quiet ones costs more than
+    its own RMS (the cost's slope at the episode's level), a quiet one after loud ones less; the config's other
+    terms (the penalty) are kept; each environment's sums restart after the period that ends its episode."""
+    from millvib_env.envs.reward import EpisodeCostReward, RewardTerms
+
+    def terms(v_mm_s, e_um, left, penalty=(0.0, 0.0)):
+        v, e = np.array(v_mm_s) * 1e-3, np.array(e_um) * 1e-6
+        config = -(v / 4.5e-3 + e / 10e-6) - np.array(penalty)  # the config's reward (weights 1)
+        return config, RewardTerms(v, e, np.zeros(2), np.zeros(2), np.array(penalty) > 0, np.array(left), config)
+
+    r = EpisodeCostReward()
+    config, t = terms([4.5, 9.0], [10.0, 5.0], [5, 5])
+    np.testing.assert_allclose(r(t), config, rtol=1e-12)  # the first period: its own level
+    config, t = terms([4.5, 0.0], [10.0, 0.0], [4, 4])
+    got = r(t)
+    assert got[0] == pytest.approx(config[0], rel=1e-12)  # steady
+    assert got[1] == 0.0  # silence adds nothing either way
+    config, t = terms([9.0, 3.0], [10.0, 2.0], [3, 3])
+    got = r(t)
+    assert got[0] < config[0]  # louder than the episode so far: more than its own RMS
+    assert got[1] > config[1]  # quieter than the episode so far: less
+    config, t = terms([4.5, 4.5], [10.0, 10.0], [0, 2], penalty=(1000.0, 0.0))
+    assert r(t)[0] < -1000.0  # the penalty kept
+    assert r.count is not None and r.count[0] == 0 and r.count[1] == 4  # env 0's episode ended: its sums restart
+
+
+def test_finetune_starts_at_the_student_scores_on_validation_and_writes_a_trained_agent(tmp_path):
+    """`millvib finetune`: the critic alone first (the actor as the student's until the warm-up ends), the actor
+    scored on validation plants after it, the best of those written as an agent folder that loads by path, with a
+    card that names its student; bad numbers are refused in one line."""
+    import torch
+
+    from millvib_env.catalog.agents import read_card
+    from millvib_env.training.finetune import ACTOR_KEYS, finetune
+
+    folder = "agents/dagger-on-pid-pf-preview-rolling/seed-0"
+    student = load_controller(folder)
+    card = finetune(folder, save_dir=tmp_path / "ft", steps=384, warmup=256, eval_every=128, n_envs=2, n_steps=64,
+                    validation_episodes=1, reward="episode-cost", progress=False)
+    assert [r["steps"] for r in card["curve"]] == [384]  # after the warm-up only
+    assert card["selected"]["steps"] == 384 and card["init_from"]["name"] == student.name
+    assert card["on"] == "pid-pf-preview" and card["env_kwargs"] == read_card(f"{folder}/card.json")["env_kwargs"]
+    assert card["hyperparameters"]["reward"] == "episode-cost" and card["task"] == "rolling"
+    tuned = load_controller(str(tmp_path / "ft"))
+    np.testing.assert_array_equal(tuned.obs_stats.mean, student.obs_stats.mean)  # the student's statistics
+    moved = [k for k, v in tuned.model.policy.state_dict().items()
+             if k.startswith(ACTOR_KEYS) and not torch.equal(v, student.model.policy.state_dict()[k])]
+    assert moved  # 128 steps of the actor's own
+    for bad, match in [(dict(warmup=384), "warmup"), (dict(actor_lr=-1.0), "actor_lr"),
+                       (dict(reward="cost"), "reward")]:
+        with pytest.raises(ValueError, match=match):
+            finetune(folder, save_dir=tmp_path / "bad", **{"steps": 384, "warmup": 0, **bad})
+    with pytest.raises(ValueError, match="student"):
+        finetune(tmp_path, save_dir=tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()

@@ -32,6 +32,7 @@ commands:
   benchmark   evaluate controllers on a task's held-out plants (and the scenarios)
   headroom    the room to learn on a task: the classical controllers against the MPC bounds (v1)
   distill     teach a residual valve policy with a preview by the MPC oracle (v1)
+  finetune    PPO on top of a distilled student, the best on validation plants kept (v1)
   export      a trained agent as an ONNX graph for a controller outside Python, checked against it
   sweep       controllers over many plants with wide parameter ranges (local processes or Ray)
 
@@ -274,6 +275,12 @@ def _cmd_distill(args) -> int:
     return 0
 
 
+def _cmd_finetune(args) -> int:
+    from millvib_env.training.finetune import finetune_from_cli
+
+    return finetune_from_cli(args)
+
+
 def _cmd_headroom(args) -> int:
     from millvib_env.evaluation.benchmark import headroom_from_cli
 
@@ -322,7 +329,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="<command>")
 
     for add in (_add_simulate, _add_reproduce, _add_speed, _add_listings,
-                _add_learning, _add_tune, _add_export, _add_distill, _add_sweep):
+                _add_learning, _add_tune, _add_export, _add_distill, _add_finetune,
+                _add_sweep):
         add(sub)
     return parser
 
@@ -492,6 +500,14 @@ def _add_distill(sub) -> None:
     add_distill_args(sub.add_parser("distill", help="teach a residual valve policy with a preview by the MPC oracle",
                        description=_plain(_module_doc("millvib_env.training.distill")),
                        formatter_class=argparse.RawDescriptionHelpFormatter), _cmd_distill)
+
+
+def _add_finetune(sub) -> None:
+    from millvib_env.training.cli_args import add_finetune_args
+
+    add_finetune_args(sub.add_parser("finetune", help="PPO on top of a distilled student, stopped on validation plants",
+                                     description=_plain(_module_doc("millvib_env.training.finetune")),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter), _cmd_finetune)
 
 
 def _add_sweep(sub) -> None:

@@ -30,7 +30,7 @@ from millvib_env.envs.config import RewardSettings
 from millvib_env.envs.filter_design import butter_sos
 from millvib_env.severity import severity_band
 
-__all__ = ["Reward", "RewardTerms", "RewardFunction", "DIVERGED_COST"]
+__all__ = ["Reward", "RewardTerms", "RewardFunction", "EpisodeCostReward", "DIVERGED_COST"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,50 @@ def user_reward(fn: Any) -> RewardFunction | None:
     """An environment's ``reward_fn``, checked: None or a callable."""
     return callable_or_none("reward_fn", fn, "a callable reward(terms) -> one reward per environment "
                                              "(envs.reward.RewardFunction)")
+
+class EpisodeCostReward:
+    """A reward (``reward_fn=``) that scores each period by what it adds to the episode's cost, not by its own RMS.
+
+    The benchmark's cost is an episode's RMS: ``sqrt(mean_t ms_t) / scale`` of the band-limited velocity and of the
+    position error (ms_t: a period's mean square). The config's reward sums each period's own RMS, ``sqrt(ms_t) /
+    scale``, whose sum is not the cost (Jensen) and whose slope ``1 / (2 sqrt(ms_t))`` is largest in the quietest
+    periods: an agent that follows it trades loud periods for quiet ones, where the cost does the opposite. This
+    reward is ``-ms_t / (sqrt(M_t) scale)`` for each of the two, M_t the episode's running mean square so far (this
+    period's included): the cost's own slope at the episode's level as far as it is known, the same value as the
+    config's reward on a steady signal. The config's other terms (effort, offset, the penalty of leaving the
+    envelope) are kept. `vibration_scale_mm_s`, `tracking_scale_um`: the cost's scales (the config's reward's);
+    `w_vibration`, `w_tracking`: the config's weights, whose terms this replaces. One instance per environment
+    batch: it keeps each environment's running sums, restarted after a period that ends an episode."""
+
+    def __init__(self, vibration_scale_mm_s: float = 4.5, tracking_scale_um: float = 10.0,
+                 w_vibration: float = 1.0, w_tracking: float = 1.0):
+        self.scales = (vibration_scale_mm_s * 1e-3, tracking_scale_um * 1e-6)
+        self.weights = (w_vibration, w_tracking)
+        self.sums: np.ndarray | None = None
+        self.count: np.ndarray | None = None
+
+    def follow(self, reward: "Reward") -> "EpisodeCostReward":
+        """Take the scales and weights of an environment's config reward (`Reward`: its ``core.reward``)."""
+        self.scales = (reward.vib_scale, reward.trk_scale)
+        self.weights = (reward.w_vib, reward.w_trk)
+        return self
+
+    def __call__(self, terms: RewardTerms) -> np.ndarray:
+        ms = np.stack([terms.vibration_rms_m_s ** 2, terms.tracking_rms_m ** 2], axis=1)
+        if self.sums is None or self.sums.shape != ms.shape:
+            self.sums, self.count = np.zeros_like(ms), np.zeros(ms.shape[0])
+        assert self.count is not None
+        self.sums += ms
+        self.count += 1
+        level = np.sqrt(np.maximum(self.sums / self.count[:, None], 1e-300))
+        scales, weights = np.array(self.scales), np.array(self.weights)
+        own = np.sqrt(ms) / scales  # the config's terms this replaces
+        marginal = ms / level / scales
+        reward = terms.config_reward + (weights * (own - marginal)).sum(axis=1)
+        ended = terms.terminated | (terms.steps_left <= 0)
+        self.sums[ended], self.count[ended] = 0.0, 0.0
+        return reward
+
 
 #: what an episode that leaves its envelope (or whose integration fails) costs at least, in the
 #: benchmark's cost units (severity / 4.5 mm/s + tracking RMS / 10 um): twice the tracking cost of

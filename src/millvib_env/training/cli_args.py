@@ -117,3 +117,32 @@ def add_distill_args(p: argparse.ArgumentParser, func) -> None:
                    help="the agent folder to write (under agents/ the manifest is updated)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=func)
+
+
+def add_finetune_args(p: argparse.ArgumentParser, func) -> None:
+    p.add_argument("student", metavar="STUDENT",
+                   help="the student's agent seed folder (a `millvib distill` agent, e.g. "
+                        "agents/dagger-on-pid-pf-preview-rolling/seed-0); its seed is the run's")
+    p.add_argument("--steps", type=int, default=600_000, help="environment steps in all (default 600000)")
+    p.add_argument("--warmup", type=int, default=200_000,
+                   help="the first steps train the critic alone, the actor held (default 200000)")
+    p.add_argument("--eval-every", type=int, default=50_000, metavar="STEPS",
+                   help="after the warm-up, score the actor on the validation plants every STEPS (default 50000)")
+    p.add_argument("--actor-lr", type=float, default=3e-5, help="the actor's Adam step (default 3e-5)")
+    p.add_argument("--critic-lr", type=float, default=3e-4, help="the critic's Adam step (default 3e-4)")
+    p.add_argument("--n-envs", type=int, default=16, help="environments stepped together (default 16)")
+    p.add_argument("--n-steps", type=int, default=256,
+                   help="steps of each environment per PPO update (default 256)")
+    p.add_argument("--gamma", type=float, default=0.99,
+                   help="PPO's discount per loop sample (default 0.99: a horizon of about 100 samples, 50 ms)")
+    p.add_argument("--reward", choices=("episode-cost", "config"), default="episode-cost",
+                   help="what PPO maximises: 'episode-cost', each period by what it adds to the episode's cost "
+                        "(default), or 'config', the environment's reward (each period's own RMS); the validation "
+                        "scores are the cost either way")
+    p.add_argument("--validation-episodes", type=int, default=40, metavar="N",
+                   help="each score runs the first N of the task's validation plants (default 40, those the "
+                        "students were selected on)")
+    p.add_argument("--save-dir", required=True, metavar="DIR",
+                   help="the agent folder to write (under agents/ the manifest is updated)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=func)
