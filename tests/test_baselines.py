@@ -195,7 +195,8 @@ def test_the_controller_groups_expand_to_their_members_once():
     assert _expand_groups(["my-agent", "classical"], "v1", start)[0] == "my-agent"
     # the mission's question: the fixed PID, the reference, the preview's classical controller, its students, the bound
     assert _expand_groups(["answer"], "v1", rolling) == ["pid-paper", "pid-pf-robust", "pid-pf-preview",
-                                                         "dagger-on-pid-pf-preview-rolling", "mpc-preview"]
+                                                         "dagger-on-pid-pf-preview-rolling",
+                                                         "ppo-on-pid-pf-preview-rolling", "mpc-preview"]
     assert _expand_groups(["answer"], "v0", rolling) == ["pid-paper", "pid-pf-robust"]
 
 

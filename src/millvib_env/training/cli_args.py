@@ -121,7 +121,7 @@ def add_distill_args(p: argparse.ArgumentParser, func) -> None:
 
 def add_finetune_args(p: argparse.ArgumentParser, func) -> None:
     p.add_argument("student", metavar="STUDENT",
-                   help="the student's agent seed folder (a `millvib distill` agent, e.g. "
+                   help="the student's agent seed folder (a millvib distill agent, e.g. "
                         "agents/dagger-on-pid-pf-preview-rolling/seed-0); its seed is the run's")
     p.add_argument("--steps", type=int, default=600_000, help="environment steps in all (default 600000)")
     p.add_argument("--warmup", type=int, default=200_000,
