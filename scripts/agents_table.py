@@ -18,6 +18,8 @@ def _shipped(selected: dict) -> str:
         return f"iteration {selected['iteration']}"
     if "steps" in selected:  # `millvib finetune`: the steps at the score it kept
         return f"{selected['steps'] / 1e6:g} M"
+    if "generation" in selected:  # scripts/es_output_layer.py
+        return f"generation {selected['generation']}"
     return "start" if selected["timesteps"] == 0 else f"{selected['timesteps'] / 1e6:g} M"
 
 
@@ -33,7 +35,8 @@ def main() -> None:
         shipped = ", ".join(_shipped(x["selected"]) for x in cards if x.get("selected")) or "last"
         c = cards[0]
         algo = ("DAgger (distill)" if "iteration" in c.get("selected", {})
-                else "ppo (finetune)" if "steps" in c.get("selected", {}) else c["algo"])
+                else "ppo (finetune)" if "steps" in c.get("selected", {})
+                else "ES (output layer)" if "generation" in c.get("selected", {}) else c["algo"])
         if not notes and c.get("trained_by"):
             notes = [c["trained_by"]]
         print(f"| {name} | {c.get('task', 'startup')} | {algo} | {c['env_id'].replace('MillVib-', '')} | "

@@ -196,6 +196,7 @@ def test_the_controller_groups_expand_to_their_members_once():
     # the mission's question: the fixed PID, the reference, the preview's classical controller, its students, the bound
     assert _expand_groups(["answer"], "v1", rolling) == ["pid-paper", "pid-pf-robust", "pid-pf-preview",
                                                          "dagger-on-pid-pf-preview-rolling",
+                                                         "es-on-pid-pf-preview-rolling",
                                                          "ppo-on-pid-pf-preview-rolling", "mpc-preview"]
     assert _expand_groups(["answer"], "v0", rolling) == ["pid-paper", "pid-pf-robust"]
 
