@@ -439,3 +439,24 @@ def test_finetune_starts_at_the_student_scores_on_validation_and_writes_a_traine
     with pytest.raises(ValueError, match="student"):
         finetune(tmp_path, save_dir=tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
+
+
+def test_the_evolution_strategies_batch_gives_each_candidate_its_own_output_layer():
+    """`scripts/es_output_layer.py` runs every candidate of a generation in one batch of environments: row r of the
+    batch must act with candidate r // plants's layer, as a torch Linear with that candidate's weights does."""
+    import runpy
+
+    import torch
+
+    script = runpy.run_path(str(Path(__file__).parents[1] / "scripts" / "es_output_layer.py"))
+    rng = np.random.default_rng(3)
+    thetas, plants = rng.standard_normal((4, 9)), 3
+    latent = torch.as_tensor(rng.standard_normal((4 * plants, 8)), dtype=torch.float32)
+    out = script["RowLinear"](thetas, plants, 8)(latent)
+    assert out.shape == (4 * plants, 1)
+    for r in range(4 * plants):
+        one = torch.nn.Linear(8, 1)
+        with torch.no_grad():
+            one.weight.copy_(torch.as_tensor(thetas[r // plants, :8][None], dtype=torch.float32))
+            one.bias.copy_(torch.as_tensor(thetas[r // plants, 8:], dtype=torch.float32))
+        assert torch.allclose(out[r], one(latent[r]), rtol=1e-5, atol=1e-5)  # float32 sums in another order

@@ -445,6 +445,17 @@ def agent_base(name: str) -> str | None:
     return value if isinstance(value, str) else None
 
 
+def agent_validation_cost(name: str) -> float:
+    """An agent's mean validation cost over its seeds (each card's ``validation.cost_mean``: its task's first
+    validation plants, the plants it was selected on); inf where a card has none."""
+    costs = []
+    for folder in agent_seed_folders(agent_folder(name)).values():
+        value = read_card(folder / "card.json").get("validation", {})
+        cost = value.get("cost_mean") if isinstance(value, dict) else None
+        costs.append(float(cost) if isinstance(cost, (int, float)) and not isinstance(cost, bool) else float("inf"))
+    return float(sum(costs) / len(costs)) if costs else float("inf")
+
+
 def _agent_version(folder: Path) -> str:
     env_id = _agent_card_key(folder, "env_id", "MillVib-GainSchedule-v0")
     return env_id.rsplit("-", 1)[-1]

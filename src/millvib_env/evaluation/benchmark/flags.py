@@ -36,8 +36,9 @@ def add_benchmark_args(p: argparse.ArgumentParser, func) -> None:
                         "pid-adaptive pid-pf-robust pid-pf-ff; v1: pid-pf-preview; seconds) and 'bounds' "
                         "(pid-pf-oracle lqr-oracle; v1: mpc-oracle mpc-preview; minutes) and 'answer' (the mission's "
                         "question in one table: pid-paper, pid-pf-robust; v1: pid-pf-preview, the task's shipped "
-                        "students on it "
-                        "and mpc-preview, which gives the room) (default: every baseline "
+                        "learned controller on it with the lowest validation cost and mpc-preview, which gives the "
+                        "room) and 'on-preview' (every shipped learned controller on pid-pf-preview) (default: "
+                        "every baseline "
                         "and every shipped agent trained on the task)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="environment version the baselines run in: v1, the loop as commissioned (a 2 kHz digital "

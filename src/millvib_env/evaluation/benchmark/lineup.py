@@ -1,6 +1,6 @@
-"""Which controllers a benchmark runs: names and groups ('classical', 'bounds', 'answer') expanded, a user's own
-`Controller` objects checked, the runs (controller x training seed) loaded, and each controller's information set
-and preview keywords."""
+"""Which controllers a benchmark runs: names and groups ('classical', 'bounds', 'answer', 'on-preview') expanded,
+a user's own `Controller` objects checked, the runs (controller x training seed) loaded, and each controller's
+information set and preview keywords."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any, Mapping, Sequence
 from tqdm.auto import tqdm
 
 from millvib_env._checks import shown
-from millvib_env.catalog.agents import agent_base, list_agents
+from millvib_env.catalog.agents import agent_base, agent_validation_cost, list_agents
 from millvib_env.control.base import Controller
 from millvib_env.catalog.factory import ControllerSpec, build_controller, resolve_controller
 from millvib_env.catalog.information import from_env_kwargs
@@ -111,24 +111,33 @@ def default_lineup(version: str, task: Task) -> list[str]:
 
 def answer_group(version: str, task: Task) -> list[str]:
     """The group 'answer', the mission's question in one table: the paper's fixed-gain PID, the reference, and in
-    v1 the classical controller of the preview's information (`ANSWER_CLASSICAL`), the shipped students trained on
-    top of it for `task` (their cards' ``on``) and the bound with the same preview (`ANSWER_BOUND`), which gives the
-    room."""
-    have = baseline_names(version)
-    if ANSWER_CLASSICAL not in have:
+    v1 the classical controller of the preview's information (`ANSWER_CLASSICAL`), the best shipped learned
+    controller trained on top of it for `task` (their cards' ``on``; the best: the lowest mean validation cost of
+    its seeds' cards, `agent_validation_cost`, on the validation plants every one of them was selected on; never
+    the held-out plants) and the bound with the same preview (`ANSWER_BOUND`), which gives the room."""
+    if ANSWER_CLASSICAL not in baseline_names(version):
         return ["pid-paper", REFERENCE]
-    learned = [a for a in list_agents(task, version, retired=False) if agent_base(a) == ANSWER_CLASSICAL]
-    return ["pid-paper", REFERENCE, ANSWER_CLASSICAL, *learned, ANSWER_BOUND]
+    learned = on_preview_group(version, task)
+    best = [min(learned, key=agent_validation_cost)] if learned else []
+    return ["pid-paper", REFERENCE, ANSWER_CLASSICAL, *best, ANSWER_BOUND]
+
+
+def on_preview_group(version: str, task: Task) -> list[str]:
+    """The group 'on-preview': every shipped learned controller trained on top of `ANSWER_CLASSICAL` for `task`
+    (their cards' ``on``), the retired ones left out."""
+    return [a for a in list_agents(task, version, retired=False) if agent_base(a) == ANSWER_CLASSICAL]
 
 
 def _expand_groups(names: Sequence[str], version: str, task: Task) -> list[str]:
     """Controller names with the groups 'classical' (`DEPLOYABLE_CLASSICAL`), 'bounds' (the `ROOM_BOUNDS` that
-    the version has) and 'answer' (`answer_group`) in place, each name once."""
+    the version has), 'answer' (`answer_group`) and 'on-preview' (`on_preview_group`) in place, each name once."""
     have = set(baseline_names(version))
     groups = {"classical": [n for n in DEPLOYABLE_CLASSICAL if n in have],
               "bounds": [n for n in ROOM_BOUNDS if n in have]}
     if "answer" in names:
         groups["answer"] = answer_group(version, task)
+    if "on-preview" in names:
+        groups["on-preview"] = on_preview_group(version, task)
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
