@@ -47,7 +47,13 @@ def _command(benchmark, args: list[str], rounds: int = 3, *, launcher: list[str]
 
 @pytest.mark.benchmark(group="commands")
 def test_main_job(benchmark):
-    """The README's main job: the mission's question in one table."""
+    """The README's main job: the mission's question in one table, in one process."""
+    _command(benchmark, ["benchmark", "--controllers", "answer", "--no-scenarios", "--jobs", "1", "--quiet"])
+
+
+@pytest.mark.benchmark(group="commands")
+def test_main_job_default_jobs(benchmark):
+    """The same with the default `--jobs auto` (worker processes for the bound and the agent)."""
     _command(benchmark, ["benchmark", "--controllers", "answer", "--no-scenarios", "--quiet"])
 
 
