@@ -202,6 +202,8 @@ def test_the_controller_groups_expand_to_their_members_once():
     assert answer[:3] == ["pid-paper", "pid-pf-robust", "pid-pf-preview"] and answer[4:] == ["mpc-preview"]
     assert answer[3] in on_it and agent_validation_cost(answer[3]) == min(map(agent_validation_cost, on_it))
     assert _expand_groups(["on-preview"], "v1", rolling) == on_it  # every learned row of the preview set
+    with pytest.raises(ValueError, match="'on-preview' is empty for task rolling in v0"):
+        _expand_groups(["on-preview"], "v0", rolling)  # the analog loop has no preview controller to learn on
     assert _expand_groups(["answer"], "v0", rolling) == ["pid-paper", "pid-pf-robust"]
 
 

@@ -138,6 +138,9 @@ def _expand_groups(names: Sequence[str], version: str, task: Task) -> list[str]:
         groups["answer"] = answer_group(version, task)
     if "on-preview" in names:
         groups["on-preview"] = on_preview_group(version, task)
+        if not groups["on-preview"]:
+            raise ValueError(f"controllers = 'on-preview' is empty for task {task.name} in {version}: the group is the "
+                             f"shipped learned controllers trained on {ANSWER_CLASSICAL}, which runs in v1")
     return list(dict.fromkeys(m for n in names for m in groups.get(n, [n])))
 
 
