@@ -294,11 +294,19 @@ def _reproduce_into(out: Path, t_end, method, maps, map_resolution, progress, so
 def _reproduce_steps(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
                      solver_study_only, jobs: int, figures: bool) -> dict:
     # the motion map's plants (most of the run's compiled work) go on a thread from the start, beside the rest
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="motion-map") as background:
+    background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="motion-map")
+    try:
         motion = (background.submit(_motion_runs, t_end, map_resolution, map_resolution + 4)
                   if maps and not solver_study_only else None)
-        return _reproduce_files(out, t_end, method, maps, map_resolution, progress, solver_study,
-                                solver_study_only, jobs, figures, motion)
+        result = _reproduce_files(out, t_end, method, maps, map_resolution, progress, solver_study,
+                                  solver_study_only, jobs, figures, motion)
+    except BaseException:
+        # a run ended by Ctrl-C or an error does not wait for the map's compiled plants (one call that cannot be
+        # stopped: a minute on a busy machine while numba compiles it); the command's launcher leaves at once
+        background.shutdown(wait=False, cancel_futures=True)
+        raise
+    background.shutdown(wait=True)
+    return result
 
 
 def _reproduce_files(out: Path, t_end, method, maps, map_resolution, progress, solver_study,
