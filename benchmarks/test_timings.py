@@ -350,6 +350,26 @@ def test_mpc_samples(benchmark, name):
 
 
 @pytest.mark.benchmark(group="pieces")
+def test_mpc_model_builds(benchmark):
+    """100 builds of the start's `mpc-preview` model (linearisation, hold, condensed QP), one plant at set-points
+    along the start's ramp: what the bound does every few samples there."""
+    from millvib_env.catalog.factory import load_controller
+    from millvib_env.control.mpc import mpc_model
+    from millvib_env.params import MillParams
+
+    settings = load_controller("mpc-preview", "startup", version="v1").settings
+    params = MillParams()
+    points = np.linspace(0.0, 1e-3, 100)
+
+    def builds() -> None:
+        for xd in points:
+            mpc_model(params, settings, 5e-4, float(xd))
+
+    benchmark.pedantic(builds, rounds=5, warmup_rounds=1)
+    benchmark.extra_info["builds"] = 100
+
+
+@pytest.mark.benchmark(group="pieces")
 def test_student_actions(benchmark):
     """The rolling student's actions for 40 observations, 100 times (its network on one thread)."""
     from millvib_env.catalog.factory import load_controller

@@ -64,10 +64,24 @@ class OperatingPoint:
 
 
 @lru_cache(maxsize=64)
+def _mean(params: MillParams) -> MillParams:
+    """`params` with the mean supply pressure (pulse_amp = 0), kept per plant: a critical-KP search linearises one
+    plant some 36 times, and the MPC bounds' start ramp some 16 times an episode (`linearize`)."""
+    return params.replace(pulse_amp=0.0)
+
+
+@lru_cache(maxsize=64)
 def _mean_pack(params: MillParams) -> np.ndarray:
-    """`pack` of `params` with the mean supply pressure (pulse_amp = 0), kept per plant: a critical-KP search
-    linearises one plant some 36 times. Shared: read it, never write it."""
-    return pack(params.replace(pulse_amp=0.0))
+    """`pack` of `_mean(params)`, kept per plant. Shared: read it, never write it."""
+    return pack(_mean(params))
+
+
+@lru_cache(maxsize=64)
+def _supply_packs(params: MillParams) -> tuple[np.ndarray, np.ndarray]:
+    """`pack` of `_mean(params)` with the supply pressure 0.1 % above and below its own: `linearize`'s central
+    difference for E's supply column, kept per plant. Shared: read them, never write them."""
+    mean, dps = _mean(params), 1e-3 * params.ps
+    return pack(mean.replace(ps=params.ps + dps)), pack(mean.replace(ps=params.ps - dps))
 
 
 @lru_cache(maxsize=64)
@@ -381,10 +395,10 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
     xd = _check_xd(params, xd)
     if friction not in ("stick", "sliding"):
         raise ValueError(f"friction = {shown(friction)} is invalid: use 'stick' or 'sliding'")
-    mean = params.replace(pulse_amp=0.0)
+    mean = _mean(params)
     y0 = settled_state(mean, xd=xd, z=params.fs / params.sigma0 if friction == "sliding" else 0.0)
     u0 = float(y0[IUI])
-    p = pack(mean)
+    p = _mean_pack(params)
 
     def c_of(u: float) -> np.ndarray:
         return drive_vector(PIDGains(0.0), xd=xd, u_ext=u, pid_on=False)
@@ -393,7 +407,7 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
         c = c_of(u)
         return lambda y: rhs_vector(0.0, y, p, c)
 
-    scale = state_scale(params)
+    scale = _state_scale(params)
     J = _numerical_jacobian(p, c_of(u0), y0, scale, friction)
     secant = du is not None
     du = 1e-3 * max(abs(u0), 1.0) if du is None else real("du", du, lo=0.0, lo_open=True, hi=params.u_max)
@@ -415,8 +429,8 @@ def linearize(params: MillParams, xd: float = 0.0, *, friction: Friction = "stic
         c[C_DFL] = sign * dF
         e_force += sign * rhs_vector(0.0, y0, p, c) / (2 * dF)
     dps = 1e-3 * params.ps
-    e_ps = (rhs_vector(0.0, y0, pack(mean.replace(ps=params.ps + dps)), c0)
-            - rhs_vector(0.0, y0, pack(mean.replace(ps=params.ps - dps)), c0)) / (2 * dps)
+    p_hi, p_lo = _supply_packs(params)
+    e_ps = (rhs_vector(0.0, y0, p_hi, c0) - rhs_vector(0.0, y0, p_lo, c0)) / (2 * dps)
     E = np.column_stack([e_force[keep], e_ps[keep]])
     op = OperatingPoint(y=y0, xd=xd, friction=friction, integral="settled")
     return StateSpace(A=A, B=B, C=np.eye(len(keep))[:3], D=np.zeros((3, 1)), op=op,

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -213,6 +214,32 @@ def mpc_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float 
         return _build_model(params, settings, dt_s, xd)
 
 
+@lru_cache(maxsize=8)
+def _stacking(N: int, ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the condensed QP's stacking takes from its horizon N and state count ns alone, made once (the start
+    ramp builds a model every few samples): the rows and columns of the target selector's ones (the tracking error
+    x_j - xd_j = s_j[0] - (xd_j - xd0): the set-point deviation of e_j, applied over step j-1 -> j, is the one at
+    t_j, so row (j - 1) ns of the stacked states takes column 3 (j - 1) + 2 of the exogenous inputs), and D, the
+    command moves. Shared: read them, never write them."""
+    rows, cols = np.arange(N) * ns, 3 * np.arange(N) + 2
+    D = np.eye(N) - np.eye(N, k=-1)
+    for a in (rows, cols, D):
+        a.flags.writeable = False
+    return rows, cols, D
+
+
+def _toeplitz_blocks(M: np.ndarray) -> np.ndarray:
+    """The block lower-triangular Toeplitz matrix of the blocks M[k] (N, ns, m): block (j, i) is M[j - i] for
+    j >= i and M[0] * 0 above the diagonal (zeros of M[0]'s signs, the numbers the masked product that built it
+    before gave), laid out (N, ns, N, m), a fresh array. Every block is a window of one padded array, so the only
+    copy is the layout's."""
+    N = M.shape[0]
+    padded = np.concatenate([np.broadcast_to(M[0] * 0.0, (N - 1,) + M.shape[1:]), M])  # padded[N - 1 + d] = M[d]
+    # window[j, :, :, w] = padded[j + w]; w = N - 1 - i gives padded[N - 1 + j - i]
+    window = np.lib.stride_tricks.sliding_window_view(padded, N, axis=0)[..., ::-1]
+    return window.transpose(0, 1, 3, 2).copy()
+
+
 def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: float) -> MPCModel:
     ss = linearize(params, xd, friction="sliding", du=min(settings.du_v, params.u_max))
     keep = [STATE_NAMES.index(n) for n in ss.states]
@@ -237,30 +264,23 @@ def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: flo
     P = _riccati_tail(Ad, Bd, Q, R, n) if settings.tail == "riccati" else Q.copy()
     N = int(settings.horizon)
     # stacked prediction: s_j = A^j s_0 + sum_i A^(j-1-i) (B u_i + E e_i), j = 1..N
-    Apow = [np.eye(ns)]
-    for _ in range(N):
-        Apow.append(Ad @ Apow[-1])
-    Phi = np.vstack(Apow[1:])                      # (N ns, ns)
+    Apow = np.empty((N + 1, ns, ns))               # A^0 .. A^N
+    Apow[0] = np.eye(ns)
+    for k in range(N):
+        np.matmul(Ad, Apow[k], out=Apow[k + 1])
+    Phi = Apow[1:].reshape(N * ns, ns)
     # block (j, i) of the input maps is A^(j-1-i) B (Toeplitz in j - i): each power's product once, then placed
-    AB = np.array([a @ Bd for a in Apow[:N]])       # (N, ns)
-    AE = np.array([a @ Ed for a in Apow[:N]])       # (N, ns, 3)
-    j_i = np.arange(N)[:, None] - np.arange(N)[None, :]  # (j - 1) - i, for block row j - 1 and column i
-    below = j_i >= 0
-    lag = np.where(below, j_i, 0)
-    Gam = (AB[lag] * below[:, :, None]).transpose(0, 2, 1).reshape(N * ns, N)
-    Gam_e = (AE[lag] * below[:, :, None, None]).transpose(0, 2, 1, 3).reshape(N * ns, 3 * N)
+    Apow_a = Apow[:N]
+    AB = Apow_a @ Bd                                # (N, ns): each power times Bd, as one product each
+    AE = Apow_a @ Ed                                # (N, ns, 3)
+    rows, cols, D = _stacking(N, ns)
+    Gam = _toeplitz_blocks(AB[:, :, None]).reshape(N * ns, N)
+    Gam_e = _toeplitz_blocks(AE).reshape(N * ns, 3 * N)
     # a residual w added at every step: s_j += sum_i A^(j-1-i) w, summed in the order of i for every j at once
-    Apow_a = np.array(Apow[:N])
     Gam_w3 = np.zeros((N, ns, ns))
     for i in range(N):
         Gam_w3[i:] += Apow_a[: N - i]
     Gam_w = Gam_w3.reshape(N * ns, ns)
-    # the tracking error x_j - xd_j = s_j[0] - (xd_j - xd0): the set-point deviation of e_j (applied over
-    # step j-1 -> j) is the one at t_j, so it enters the target through a selector
-    Tsel = np.zeros((N * ns, 3 * N))  # the target: s_j[0] = xd_j - xd0 (the xd of e_(j-1))
-    for j in range(1, N + 1):
-        Tsel[(j - 1) * ns, 3 * (j - 1) + 2] = 1.0
-    D = np.eye(N) - np.eye(N, k=-1)  # command moves
     rd = settings.r_d / U_SCALE_V ** 2
     # the left factor of every product below, once: Gam' Qbar, Qbar block-diagonal (Q at every step, Q + P at the
     # last). Q is diagonal, so its blocks are Gam's rows scaled (the dense product's values: every other term is 0)
@@ -269,7 +289,8 @@ def _build_model(params: MillParams, settings: MPCSettings, dt_s: float, xd: flo
     H = GQ @ Gam + R * np.eye(N) + rd * D.T @ D
     H = 0.5 * (H + H.T)
     G_s = GQ @ Phi
-    G_e = GQ @ (Gam_e - Tsel)
+    Gam_e[rows, cols] -= 1.0  # Gam_e - Tsel, the target selector Tsel's ones (every other entry less 0 is itself)
+    G_e = GQ @ Gam_e
     G_u = np.zeros(N)
     G_u[0] = -rd  # the first move is from the command already held
     return MPCModel(keep=keep, y0=ss.op.y.copy(), u0=float(ss.op.y[IUI]), xd0=float(xd), Ad=Ad, Bd=Bd, Ed=Ed,

@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numba import njit
@@ -409,6 +410,14 @@ def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> n
     return y0
 
 
+@lru_cache(maxsize=64)
+def _resting_pack(params: MillParams) -> np.ndarray:
+    """`pack` of `params` with the spool at its command (no valve dynamics, no stroke limit): what `settled_state`
+    solves on, kept per plant (the MPC bounds linearise one plant some 16 times an episode on the start ramp).
+    Shared: read it, never write it."""
+    return pack(params.replace(valve_wn_hz=0.0, xv_max=math.inf))
+
+
 def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: float = 0.0) -> np.ndarray:
     """Steady operation at the set-point: x = xd, at rest, bristles at z (default relaxed, 0), pL
     holding the load (force balance 8) and the integral term uI feeding the leak (continuity 4:
@@ -419,7 +428,7 @@ def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: floa
     its mean (the pulsation's phase is zero at t = 0). A valve with dynamics starts with its spool
     at the opening that holds the leak (the command solved with the ideal valve's equations).
     """
-    p = pack(params.replace(valve_wn_hz=0.0, xv_max=math.inf))
+    p = _resting_pack(params)
     c = np.zeros(NC)
     c[C_KP], c[C_PID], c[C_XD], c[C_DFL] = 1.0, 1.0, xd, dFL  # e = 0: the gain plays no part
     y = np.zeros(NY)
