@@ -171,6 +171,12 @@ class MillVibCore(EpisodeReads):
         c1, ct = change.values_at(self.T[i], p)
         return {**self._plant_info[i], "c1": c1, "Ct": ct}
 
+    def _step_infos(self) -> list[dict]:
+        """Every environment's step info, {"params": `current_params(i)`}: where the plant holds still, a copy of the
+        episode's dict made in the loop itself (a step of 200 environments made 200 method calls for it)."""
+        return [{"params": info.copy() if profile is None or profile.change is None else self.current_params(i)}
+                for i, (info, profile) in enumerate(zip(self._plant_info, self.profiles))]
+
     # ------------------------------------------------------------------------------------------
     def seed_env(self, i: int, seed: int | None) -> None:
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
@@ -334,7 +340,7 @@ class MillVibCore(EpisodeReads):
 
         ended = np.flatnonzero(terminated | truncated)
         metrics = dict(zip(ended.tolist(), self.episode_metrics_batch(ended, terminated[ended]))) if ended.size else {}
-        infos: list[dict] = [{"params": self.current_params(i)} for i in range(n)]
+        infos = self._step_infos()
         if self.record_signals:
             for i in range(n):
                 infos[i]["signals"] = self._signals(i, np.repeat(xd_step[i], st.spp))
