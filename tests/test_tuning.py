@@ -146,3 +146,65 @@ def test_a_raced_grid_keeps_the_sets_cheapest_on_the_first_plants_with_their_who
     assert np.array_equal(search.raced_costs(sets[:40], list(range(12)), task=None), table[:40].mean(axis=1))
     assert np.array_equal(search.raced_costs(sets, [0, 1, 2], task=None), table[:, :3].mean(axis=1))
     assert calls == [(40, 12), (120, 3)]
+
+
+def test_an_interrupted_tune_keeps_its_finished_entries_and_resume_goes_on_to_the_same_file(monkeypatch, tmp_path,
+                                                                                           capsys):
+    """A Ctrl-C in `millvib tune` keeps the finished entries in the result's journal and says so in its one line;
+    the same command again refuses to start over them, another tune's options cannot resume them, and `--resume`
+    tunes only what was left (pid-pf-ff from the journal's pid-pf-robust) and writes the file an uninterrupted run
+    writes. The searches are stand-ins whose results depend only on what they are given."""
+    import yaml
+
+    from millvib_env.cli import main as cli_main
+    from millvib_env.tuning import baselines, search as tuning
+
+    calls: list[str] = []
+    stop = {"at": "pid-pf-ff"}
+
+    def tune(seeds, **k):
+        calls.append("tune")
+        shift = 0.1 if k.get("params") is not None else 0.0
+        return tuning.TuneResult(np.array([5.5, 8.0, 2.0]) + shift + 1e-3 * len(seeds), 1.0 + 1e-2 * len(seeds),
+                                 np.zeros(3), 2.0, 1)
+
+    def tune_from(starts, seeds, **k):
+        name = "pid-pf-ff" if starts.shape[1] == 5 else "pid-pf-robust"
+        if name == stop["at"]:
+            raise KeyboardInterrupt
+        calls.append(name)
+        return tuning.TuneResult(starts[0] + 0.25, 0.9 - 1e-2 * starts.shape[1], np.zeros(starts.shape[1]), 2.0, 1)
+
+    monkeypatch.setattr(tuning, "tune", tune)
+    monkeypatch.setattr(tuning, "tune_from", tune_from)
+    monkeypatch.setattr(baselines, "_pf_starts", lambda t, seeds, version, pid: np.array([np.r_[pid, -4.0]]))
+    only = ["--only", "pid-nominal", "pid-robust", "pid-pf-robust", "pid-pf-ff"]
+    out, journal = tmp_path / "rolling.yaml", tmp_path / "rolling.yaml.partial"
+    command = ["tune", "--task", "rolling", *only, "--out", str(out), "--quiet"]
+
+    assert cli_main(command) == 130
+    said = capsys.readouterr().err.strip().splitlines()
+    assert len(said) == 1 and "interrupted; the finished entries (pid-nominal, pid-robust, pid-pf-robust)" in said[0]
+    assert "--resume" in said[0] and not out.exists() and journal.is_file()
+    kept = journal.read_bytes()
+
+    assert cli_main(command) == 2
+    assert "add --resume to go on from them" in capsys.readouterr().err and journal.read_bytes() == kept
+    assert cli_main([*command, "--resume", "--grid", "3"]) == 2
+    assert "journal of another tune (grid 5 there, 3 here)" in capsys.readouterr().err
+
+    stop["at"], calls[:] = "", []
+    assert cli_main([*command, "--resume"]) == 0
+    assert calls == ["pid-pf-ff"] and not journal.exists()
+    again = tmp_path / "again.yaml"
+    assert cli_main(["tune", "--task", "rolling", *only, "--out", str(again), "--quiet"]) == 0
+    resumed, whole = yaml.safe_load(out.read_text()), yaml.safe_load(again.read_text())
+    assert resumed.pop("wall_time_s") >= 0 and whole.pop("wall_time_s") >= 0
+    assert resumed == whole
+
+    journal.write_text("run: {}\nwall_time_s: 1.0\nentries: 3\n")
+    assert cli_main([*command, "--resume"]) == 2
+    assert "is damaged" in capsys.readouterr().err
+    journal.unlink()
+    assert cli_main([*command, "--resume"]) == 2
+    assert "there is no journal" in capsys.readouterr().err

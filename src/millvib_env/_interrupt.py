@@ -15,10 +15,12 @@ from __future__ import annotations
 import signal
 import sys
 
-__all__ = ["install", "restore", "check", "pending"]
+__all__ = ["install", "restore", "check", "pending", "leave_note", "take_note"]
 
 #: the signal received since `install` (0: none)
 _got = 0
+#: what a long run has kept so far, said on the line of its interruption (`leave_note`)
+_note = ""
 
 
 class Terminated(KeyboardInterrupt):
@@ -45,8 +47,8 @@ def _unraisable(previous):
 def install() -> dict:
     """Install `handler` for SIGINT (unless it is ignored) and SIGTERM, in the main thread only; return the
     previous handlers for `restore`."""
-    global _got
-    _got = 0
+    global _got, _note
+    _got, _note = 0, ""
     previous: dict = {"unraisablehook": sys.unraisablehook}
     sys.unraisablehook = _unraisable(sys.unraisablehook)
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -60,13 +62,27 @@ def install() -> dict:
 
 
 def restore(previous: dict) -> None:
-    global _got
-    _got = 0
+    global _got, _note
+    _got, _note = 0, ""
     for key, h in previous.items():
         if key == "unraisablehook":
             sys.unraisablehook = h
         else:
             signal.signal(key, h)
+
+
+def leave_note(note: str) -> None:
+    """What the command has kept so far and how to go on from it ('' for nothing): said on the one line of an
+    interruption (`millvib tune` names the journal of its finished entries and --resume)."""
+    global _note
+    _note = note
+
+
+def take_note() -> str:
+    """The note left (`leave_note`), once: '' after it is taken."""
+    global _note
+    note, _note = _note, ""
+    return note
 
 
 def pending() -> int:

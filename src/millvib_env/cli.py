@@ -474,6 +474,7 @@ def _add_tune(sub) -> None:
                    help="write into the shipped configs/control/[v1/]<task>.yaml instead")
     p.add_argument("--force", action="store_true",
                    help="replace entries even where this run's tuning cost is worse than theirs")
+    p.add_argument("--resume", action="store_true", help="go on from an unfinished run's entries (FILE.partial)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=_cmd_tune)
 
@@ -587,10 +588,11 @@ def _run(argv: list[str] | None) -> int:
 def _signalled(command: str, signum: int) -> int:
     """The one line and the status of a run that a signal ended (SIGTERM: 143, Ctrl-C: 130)."""
     _close_bars()
+    said = f"; {note}" if (note := _interrupt.take_note()) else ""
     if signum == signal.SIGTERM:
-        print(f"{command}: terminated", file=sys.stderr)
+        print(f"{command}: terminated{said}", file=sys.stderr)
         return 143
-    print(f"{command}: interrupted", file=sys.stderr)
+    print(f"{command}: interrupted{said}", file=sys.stderr)
     return 130
 
 

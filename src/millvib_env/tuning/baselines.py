@@ -23,6 +23,10 @@ so it can be read back), or with ``--write-config`` into configs/control/<task>.
 entry that costs more on its tuning plants than the entry it would replace is kept out and reported,
 unless ``--force`` (a 2-trial Optuna study never replaces a better shipped baseline silently). A run
 of some entries (``--only``) keeps the file's ``wall_time_s``, the whole tune's, and prints its own.
+
+Each finished entry is written at once to a journal beside the result (``FILE.partial``): a run that a Ctrl-C, a
+crash or a lost machine ends says so, and the same command with ``--resume`` goes on from its finished entries
+to the file an uninterrupted run writes (``tuning.journal``).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from millvib_env.params import MillParams
 from millvib_env.tasks import Task, takes_task
 from millvib_env.tuning import ENTRIES  # every entry `millvib tune` tunes, in TUNERS' order
 from millvib_env.tuning import search as tuning  # the searches, called through the module (a test stands them in)
+from millvib_env.tuning.journal import open_journal
 from millvib_env.envs.config import DEFAULT_VERSION
 
 __all__ = ["ENTRIES", "tune_task", "merge_entries", "tune_from_cli", "tuning_seeds"]
@@ -277,24 +282,35 @@ SHARED = ("pid-oracle", "lqr-oracle", "pid-pf-oracle")
 @takes_task("task", "from_task")
 def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str | Task | None = None, grid: int = 5,
               optuna: str | None = None, trials: int = 60, shipped: dict | None = None,
-              progress: bool = True, version: str = DEFAULT_VERSION, jobs: int = 1) -> dict[str, Any]:
+              progress: bool = True, version: str = DEFAULT_VERSION, jobs: int = 1, done: dict | None = None,
+              on_entry: Callable[[str, dict], None] | None = None) -> dict[str, Any]:
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config). `jobs`: worker processes for the oracle tables'
-    grid plants (`distributed.run_jobs`; the same tables for any number)."""
+    grid plants (`distributed.run_jobs`; the same tables for any number). `done`: entries an earlier, unfinished
+    run of the same call tuned (`tuning.journal`), taken as this run's and not tuned again; `on_entry(name, entry)`
+    is called as each entry is finished (the journal is written there)."""
     jobs = integer("jobs", jobs, lo=1, hi=1024)
     assert isinstance(task, Task) and (from_task is None or isinstance(from_task, Task))  # by @takes_task
     t = task
     shared_from = None if from_task is None else from_task.name
     r = _Run(t, tuning_seeds(t), version, grid, progress, dict(shipped or {}), jobs=jobs)
     todo = list(dict.fromkeys(only or [n for n in ENTRIES if version != "v0" or n not in LOOP_ONLY]))
-    if optuna:
-        r.out.update(_tune_with_optuna(t, r.seeds, todo, optuna, trials, r.say, version))
+    r.out.update({name: entry for name, entry in (done or {}).items() if name in todo})
+    if r.out:
+        r.say(f"resumed: {', '.join(r.out)} from the unfinished run")
+    finished = on_entry or (lambda name, entry: None)
+    if optuna and any(name not in r.out for name in todo):
+        by_study = _tune_with_optuna(t, r.seeds, [n for n in todo if n not in r.out], optuna, trials, r.say, version)
+        for name, entry in by_study.items():
+            r.out[name] = entry
+            finished(name, entry)
     for name, step in TUNERS.items():
         if name not in todo or name in r.out:
             continue
         r.out[name] = {"from_task": shared_from} if shared_from and name in SHARED else step(r)
-    return r.out
+        finished(name, r.out[name])
+    return {name: r.out[name] for name in TUNERS if name in r.out}
 
 
 def _tuned_table(r: _Run, name: str, seeds: list[int], how: str, base: list[float] | None = None) -> dict:
@@ -399,18 +415,31 @@ def tune_from_cli(args) -> int:
     shipped = load_yaml(shipped_path, "control config") if shipped_path.is_file() else {}
     if not isinstance(shipped, dict):
         raise ValueError(f"{shipped_path} must be a mapping of entries")
+    run = {"task": t.name, "env_version": version, "only": None if not args.only else list(dict.fromkeys(args.only)),
+           "grid": args.grid, "from_task": getattr(args.from_task, "name", args.from_task),
+           "optuna": args.optuna, "trials": args.trials if args.optuna else None}
+    journal = open_journal(target, run, args.resume)
     start = time.time()
+    clock = [start]
+
+    def finished(name: str, entry: dict) -> None:
+        now = time.time()
+        journal.record(name, entry, now - clock[0])
+        clock[0] = now
+
     tuned = tune_task(t, args.only, from_task=args.from_task, grid=args.grid, optuna=args.optuna,
-                      trials=args.trials, shipped=shipped, progress=not args.quiet, version=version, jobs=args.jobs)
+                      trials=args.trials, shipped=shipped, progress=not args.quiet, version=version, jobs=args.jobs,
+                      done=journal.entries, on_entry=finished)
     merged, notes = merge_entries(shipped, tuned, force=args.force)
     merged.setdefault("cost", "mean episode cost = severity / 4.5 mm/s + tracking RMS / 10 um (a diverged episode: at "
                               f"least 1000), gain-schedule env {version} config {t.config}, gains held fixed")
-    took = round(time.time() - start, 1)
+    took = round(journal.wall_time_s + time.time() - clock[0], 1)  # an unfinished run's seconds and this one's
     if not args.only or "wall_time_s" not in merged:  # a run of some entries leaves the whole tune's time as it was
         merged["wall_time_s"] = took
     header = (f"# Written by `millvib tune --task {t.name} --env-version {version}` (millvib_env.tuning.baselines: "
               "the method of each entry is in its `how`).\n")
     write_text_atomic(target, header + yaml.safe_dump(merged, sort_keys=False, width=110))
+    journal.close()
     for line in notes:
         print(line)
     print(f"wrote {target} ({took} s)")
