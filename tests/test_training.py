@@ -460,3 +460,43 @@ def test_the_evolution_strategies_batch_gives_each_candidate_its_own_output_laye
             one.weight.copy_(torch.as_tensor(thetas[r // plants, :8][None], dtype=torch.float32))
             one.bias.copy_(torch.as_tensor(thetas[r // plants, 8:], dtype=torch.float32))
         assert torch.allclose(out[r], one(latent[r]), rtol=1e-5, atol=1e-5)  # float32 sums in another order
+
+
+def test_an_interrupted_sweep_keeps_its_finished_jobs_and_resume_writes_the_same_files(monkeypatch, tmp_path, capsys):
+    """A Ctrl-C in `millvib sweep` keeps the finished jobs' episodes in the folder's journal and says so in its one
+    line; the same command refuses to start over them, another sweep's options cannot resume them, and `--resume`
+    runs only the jobs left (after a line the interruption cut short) to the files an uninterrupted run writes."""
+    from millvib_env.evaluation import sweep
+
+    real, calls, stop = sweep.episode_records, [], {"at": 3}
+
+    def records(**job):
+        calls.append(job["seeds"])
+        if len(calls) == stop["at"]:
+            raise KeyboardInterrupt
+        return real(**job)
+
+    monkeypatch.setattr(sweep, "episode_records", records)
+    monkeypatch.setattr(sweep, "CHUNK", 1)  # a job a plant
+    out, journal = tmp_path / "sweep", tmp_path / "sweep.partial"
+    command = ["sweep", "--controllers", "pid-paper", "--plants", "4", "--out", str(out), "--quiet", "--no-figures"]
+    assert cli_main(command) == 130
+    said = capsys.readouterr().err.strip().splitlines()
+    assert said == [f"millvib sweep: interrupted; 2 of 4 jobs are kept in {journal}: the same command with --resume "
+                    "goes on from them"]
+    assert not out.exists() and len(journal.read_text().splitlines()) == 3
+    assert cli_main(command) == 2
+    assert "add --resume to go on from them" in capsys.readouterr().err
+    assert cli_main([*command[:4], "3", *command[5:], "--resume"]) == 2
+    assert "journal of another sweep (plants 4 there, 3 here)" in capsys.readouterr().err
+
+    with open(journal, "a") as f:
+        f.write('{"job": 2, "rec')  # the line a job was writing when the machine went
+    stop["at"], calls[:] = 0, []
+    assert cli_main([*command, "--resume"]) == 0
+    assert len(calls) == 2 and not journal.exists()  # jobs 2 and 3
+    whole = tmp_path / "whole"
+    assert cli_main(["sweep", "--controllers", "pid-paper", "--plants", "4", "--out", str(whole), "--quiet",
+                     "--no-figures"]) == 0
+    for name in ("plants.csv", "summary.json"):
+        assert (out / name).read_bytes() == (whole / name).read_bytes()

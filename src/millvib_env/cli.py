@@ -523,13 +523,13 @@ def _add_sweep(sub) -> None:
     p.add_argument("--task", default="startup", help="task (default startup)")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="the loop the baselines run on: v1, as commissioned (default), or v0, the paper's analog loop")
-    p.add_argument("--seed", type=int, default=None, help="first plant seed (default: 40000 into the task's "
-                                                          "held-out range)")
+    p.add_argument("--seed", type=int, default=None, help="first plant seed (default: 40000 into its held-out range)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (replaced as a whole)")
     p.add_argument("--no-figures", action="store_true", help="write plants.csv and summary.json only, not maps.png")
     p.add_argument("--jobs", type=int, default=1, help="local processes (default 1)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="run on Ray: a local cluster, or the running cluster at ADDRESS")
+    p.add_argument("--resume", action="store_true", help="go on from an unfinished run's jobs (DIR.partial)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_sweep)
 

@@ -5,6 +5,11 @@ others keep the task's own distribution), from held-out seeds of the task. Contr
 plants are independent jobs, run in local processes or on Ray (`distributed.run_jobs`); each
 episode depends only on its seed, so local and Ray runs give the same numbers. Writes a per-plant
 CSV, a summary JSON and maps of the cost over the swept parameters (PNG), as a whole folder.
+
+A long sweep keeps each finished job's episodes at once in a journal beside the folder (`DIR.partial`, JSON
+lines: the run, then a line per job, appended as each ends): a run that a Ctrl-C, a crash or a lost cluster
+ends says so, and the same command with ``--resume`` runs only the jobs left, to the files an uninterrupted run
+writes (an episode's numbers go through JSON unchanged); the journal goes once they are written.
 """
 
 from __future__ import annotations
@@ -13,12 +18,14 @@ import csv
 import io
 import json
 import math
+import os
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from millvib_env._checks import integer, shown, strings
+from millvib_env import _interrupt
+from millvib_env._checks import integer, shown, shown_path, strings
 from millvib_env._figures import log_span, panel_grid
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.catalog.factory import load_controller
@@ -30,7 +37,7 @@ from millvib_env.evaluation.benchmark import episode_records, format_table, summ
 from millvib_env.evaluation.evaluate import COST_SCALES
 from millvib_env.envs.config import DEFAULT_VERSION
 
-__all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli"]
+__all__ = ["RANGES", "run_sweep", "write_sweep", "sweep_from_cli", "journal_path"]
 
 #: the swept parameters' ranges: c1 and Ct the paper's (log-uniform), the others +-20 % of Table 1
 RANGES = {"c1": ("loguniform", *studied_range("c1")), "Ct": ("loguniform", *studied_range("Ct")),
@@ -54,9 +61,12 @@ def _randomize(task: Task, params: Sequence[str], version: str = DEFAULT_VERSION
 @takes_task()
 def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "startup",
               params: Sequence[str] = ("c1", "Ct"), seed: int | None = None, ray: str | None = None,
-              processes: int = 1, progress: bool = True, env_version: str = "v1") -> dict:
+              processes: int = 1, progress: bool = True, env_version: str = "v1", journal: str | Path | None = None,
+              resume: bool = False) -> dict:
     """Every controller on `plants` plants; returns {"records": {name: [...]}, "summary": ...}. Baselines run
-    in environment version `env_version` (agents in their own)."""
+    in environment version `env_version` (agents in their own). `journal`: a file that keeps each finished job's
+    episodes as it ends (module docstring); `resume` goes on from the jobs an unfinished run of the same sweep
+    kept there."""
 
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
@@ -76,15 +86,90 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "st
     jobs = [{"name": n, "task": t, "seeds": seeds[i:i + CHUNK], "env_kwargs": {"randomize": randomize},
              "env_id": env_id}
             for n in controllers for i in range(0, plants, CHUNK)]
-    parts = run_jobs(episode_records, jobs, ray=ray, processes=processes, progress=progress,
-                     desc=f"sweep {t.name}")
+    run = {"task": t.name, "env_version": env_version, "controllers": controllers, "plants": plants, "params": params,
+           "seed": first}
+    parts = {} if journal is None else _open_journal(Path(journal), run, resume, len(jobs))
+    todo = [i for i in range(len(jobs)) if i not in parts]
+
+    def finished(k: int, part: list) -> None:
+        parts[todo[k]] = part
+        if journal is not None:
+            _record(Path(journal), run, todo[k], part, len(parts), len(jobs))
+
+    run_jobs(episode_records, [jobs[i] for i in todo], ray=ray, processes=processes, progress=progress,
+             desc=f"sweep {t.name}", on_result=finished)
     records: dict[str, list] = {n: [] for n in controllers}
-    for job, part in zip(jobs, parts):
-        records[str(job["name"])].extend(part)
+    for i, job in enumerate(jobs):
+        records[str(job["name"])].extend(parts[i])
     summary = {"task": t.name, "env_version": env_version, "plants": plants, "seed": first, "params": params,
                "ranges": {p: list(RANGES[p]) for p in params},
                "controllers": {n: summarize(r) for n, r in records.items()}}
     return {"records": records, "summary": summary}
+
+
+def journal_path(out: str | Path) -> Path:
+    """The journal of a sweep into the folder `out`: beside it, `out` with `.partial` added."""
+    out = Path(out)
+    return out.with_name(out.name + ".partial")
+
+
+def _open_journal(path: Path, run: dict, resume: bool, n_jobs: int) -> dict[int, list]:
+    """The jobs an unfinished run of the sweep `run` kept in `path` ({job: its episodes}) with `resume`; else none
+    (and no journal may be there: the first finished job starts it). A line cut short by the interruption ends the
+    reading: its job runs again."""
+    if not path.exists():
+        if resume:
+            raise ValueError(f"--resume: there is no journal {shown_path(path)} of an unfinished sweep to go on from")
+        return {}
+    if not resume:
+        raise ValueError(f"{shown_path(path)} holds the finished jobs of an unfinished sweep: add --resume to go on "
+                         "from them, or delete it to start again")
+    try:
+        lines = path.read_text(encoding="utf-8").split("\n")
+        head = json.loads(lines[0])
+    except (OSError, ValueError) as err:
+        raise ValueError(f"sweep journal {shown_path(path)} cannot be read ({type(err).__name__}); delete it to start "
+                         "again") from None
+    theirs = head.get("run") if isinstance(head, dict) else None
+    if theirs != run:
+        theirs = theirs if isinstance(theirs, dict) else {}
+        differ = [f"{k} {shown(theirs.get(k))} there, {shown(v)} here" for k, v in run.items() if theirs.get(k) != v]
+        raise ValueError(f"--resume: {shown_path(path)} is the journal of another sweep ({'; '.join(differ)}): give "
+                         "the same options, or delete it to start again")
+    done: dict[int, list] = {}
+    for n, line in enumerate(lines[1:], start=1):
+        try:
+            item = json.loads(line)
+        except ValueError:  # the end, or a line the interruption cut short: the journal goes on after the last job
+            if line or n < len(lines) - 1:
+                write_text_atomic(path, "\n".join(lines[:n]) + "\n")
+            break
+        job, recs = (item.get("job"), item.get("records")) if isinstance(item, dict) else (None, None)
+        if isinstance(job, bool) or not isinstance(job, int) or not 0 <= job < n_jobs or not isinstance(recs, list) \
+                or not all(isinstance(r, dict) for r in recs):
+            raise ValueError(f"sweep journal {shown_path(path)} is damaged (a line that is no finished job); delete "
+                             "it to start again")
+        done[job] = recs
+    _interrupt.leave_note(_kept(path, len(done), n_jobs))
+    return done
+
+
+def _record(path: Path, run: dict, job: int, recs: list, n_done: int, n_jobs: int) -> None:
+    """Job `job`'s episodes appended to the journal as one line, on the disk before the next job's (the journal
+    started, its first line the run, at the first)."""
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(path, json.dumps({"run": run}) + "\n")
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(json.dumps({"job": job, "records": recs}) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    _interrupt.leave_note(_kept(path, n_done, n_jobs))
+
+
+def _kept(path: Path, n_done: int, n_jobs: int) -> str:
+    return (f"{n_done} of {n_jobs} jobs are kept in {shown_path(path)}: the same command with --resume goes on from "
+            "them") if n_done else ""
 
 
 def write_sweep(result: dict, out: str | Path, *, figures: bool = True) -> list[Path]:
@@ -142,8 +227,10 @@ def _maps(result: dict):
 def sweep_from_cli(args) -> int:
 
     check_result_folder(args.out, "--out", "sweep")
+    journal = journal_path(args.out)
     result = run_sweep(args.controllers, args.plants, task=args.task, params=args.params, seed=args.seed,
-                       ray=args.ray, processes=args.jobs, progress=not args.quiet, env_version=args.env_version)
+                       ray=args.ray, processes=args.jobs, progress=not args.quiet, env_version=args.env_version,
+                       journal=journal, resume=args.resume)
 
     s = result["summary"]
     ranges = ", ".join(f"{p} {lo:g}-{hi:g} ({kind})" for p, (kind, lo, hi) in s["ranges"].items())
@@ -154,5 +241,7 @@ def sweep_from_cli(args) -> int:
     print(format_table({"task": s["task"], "episodes": s["plants"], "seed": s["seed"], "title": title,
                         "cost_scales": dict(COST_SCALES), "controllers": s["controllers"]}))
     files = write_sweep(result, args.out, figures=not args.no_figures)
+    journal.unlink(missing_ok=True)
+    _interrupt.leave_note("")
     print(f"wrote {len(files)} files to {args.out}")
     return 0
