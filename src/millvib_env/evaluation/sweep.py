@@ -27,6 +27,7 @@ import numpy as np
 from millvib_env import _interrupt
 from millvib_env._checks import integer, shown, shown_path, strings
 from millvib_env._figures import log_span, panel_grid
+from millvib_env._journal import check_same_run, found, journal_path
 from millvib_env._paths import atomic_folder, check_result_folder, save_figure, write_text_atomic
 from millvib_env.catalog.factory import load_controller
 from millvib_env.distributed import run_jobs
@@ -107,35 +108,19 @@ def run_sweep(controllers: Sequence[str], plants: int, *, task: str | Task = "st
     return {"records": records, "summary": summary}
 
 
-def journal_path(out: str | Path) -> Path:
-    """The journal of a sweep into the folder `out`: beside it, `out` with `.partial` added."""
-    out = Path(out)
-    return out.with_name(out.name + ".partial")
-
-
 def _open_journal(path: Path, run: dict, resume: bool, n_jobs: int) -> dict[int, list]:
     """The jobs an unfinished run of the sweep `run` kept in `path` ({job: its episodes}) with `resume`; else none
     (and no journal may be there: the first finished job starts it). A line cut short by the interruption ends the
     reading: its job runs again."""
-    if not path.exists():
-        if resume:
-            raise ValueError(f"--resume: there is no journal {shown_path(path)} of an unfinished sweep to go on from")
+    if not found(path, resume, "sweep", "jobs"):
         return {}
-    if not resume:
-        raise ValueError(f"{shown_path(path)} holds the finished jobs of an unfinished sweep: add --resume to go on "
-                         "from them, or delete it to start again")
     try:
         lines = path.read_text(encoding="utf-8").split("\n")
         head = json.loads(lines[0])
     except (OSError, ValueError) as err:
         raise ValueError(f"sweep journal {shown_path(path)} cannot be read ({type(err).__name__}); delete it to start "
                          "again") from None
-    theirs = head.get("run") if isinstance(head, dict) else None
-    if theirs != run:
-        theirs = theirs if isinstance(theirs, dict) else {}
-        differ = [f"{k} {shown(theirs.get(k))} there, {shown(v)} here" for k, v in run.items() if theirs.get(k) != v]
-        raise ValueError(f"--resume: {shown_path(path)} is the journal of another sweep ({'; '.join(differ)}): give "
-                         "the same options, or delete it to start again")
+    check_same_run(path, head.get("run") if isinstance(head, dict) else None, run, "sweep")
     done: dict[int, list] = {}
     for n, line in enumerate(lines[1:], start=1):
         try:

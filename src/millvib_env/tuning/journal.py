@@ -17,20 +17,12 @@ from pathlib import Path
 
 from millvib_env import _interrupt
 from millvib_env._checks import shown, shown_path
+from millvib_env._journal import check_same_run, found, journal_path
 from millvib_env._paths import write_text_atomic
 from millvib_env._yaml import load_yaml
 from millvib_env.tuning import ENTRIES
 
 __all__ = ["Journal", "journal_path", "open_journal"]
-
-SUFFIX = ".partial"
-
-
-def journal_path(target: str | Path) -> Path:
-    """The journal of a tune whose result goes to `target`."""
-    target = Path(target)
-    return target.with_name(target.name + SUFFIX)
-
 
 @dataclass
 class Journal:
@@ -65,14 +57,8 @@ def open_journal(target: str | Path, run: dict, resume: bool) -> Journal:
     unfinished run of the same `run` left. A ValueError of one line where `resume` finds none, finds another run's,
     or finds one the run would overwrite (no `resume`)."""
     path = journal_path(target)
-    if not path.exists():
-        if resume:
-            raise ValueError(f"--resume: there is no journal {shown_path(path)} of an unfinished tune into "
-                             f"{shown_path(target)} to go on from")
+    if not found(path, resume, f"tune into {shown_path(target)}", "entries"):
         return Journal(path, run)
-    if not resume:
-        raise ValueError(f"{shown_path(path)} holds the finished entries of an unfinished tune into "
-                         f"{shown_path(target)}: add --resume to go on from them, or delete it to start again")
     data = load_yaml(path, "tune journal", mapping=True)
     entries, seconds = data.get("entries"), data.get("wall_time_s")
     if set(data) != {"run", "wall_time_s", "entries"} or not isinstance(entries, dict) \
@@ -84,11 +70,7 @@ def open_journal(target: str | Path, run: dict, resume: bool) -> Journal:
     if unknown:
         raise ValueError(f"tune journal {shown_path(path)} is damaged: entries {shown(unknown)} are not tuned "
                          f"entries ({', '.join(ENTRIES)}); delete it to start again")
-    if data["run"] != run:
-        theirs = data["run"] if isinstance(data["run"], dict) else {}
-        differ = [f"{k} {shown(theirs.get(k))} there, {shown(v)} here" for k, v in run.items() if theirs.get(k) != v]
-        raise ValueError(f"--resume: {shown_path(path)} is the journal of another tune ({'; '.join(differ) or 'run'}): "
-                         "give the same options, or delete it to start again")
+    check_same_run(path, data["run"], run, "tune")
     journal = Journal(path, run, dict(entries), float(seconds))
     if entries:
         _interrupt.leave_note(f"the finished entries ({', '.join(entries)}) are kept in {shown_path(path)}: the same "
