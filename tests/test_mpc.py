@@ -387,6 +387,65 @@ def test_distill_scores_the_students_from_the_iteration_asked_and_fits_in_the_ba
         dist.distill("startup", iterations=2, validate_from=3, save_dir=tmp_path / "b", progress=False)
 
 
+def test_an_interrupted_distillation_goes_on_from_its_last_finished_iteration_to_the_same_agent(tmp_path, monkeypatch):
+    """A distillation cut after its second of three iterations keeps them in its journal (SAVE_DIR.partial) and
+    writes no agent; the same call refuses to start over the journal, another run's options cannot resume it, and
+    `resume` runs only the third iteration, to the agent an uninterrupted run writes: every weight and statistic the
+    same, the card the same but for its name and time. A run cut in its first iteration keeps nothing."""
+    import json
+
+    import millvib_env.training.distill as dist
+    import millvib_env.training.distill_journal as dj
+    from stable_baselines3 import PPO
+
+    from millvib_env.threads import one_torch_thread
+
+    one_torch_thread()  # as the first run's scoring sets it: the critic's initial weights (unused by a student, never
+    # fitted) depend on torch's thread count, the actor's do not
+    kw = dict(iterations=3, episodes=1, epochs=1, progress=False, validation_episodes=1, net=(8,))
+    whole = dist.distill("startup", save_dir=tmp_path / "whole", **kw)
+    record, ran = dj.DistillJournal.record, []
+
+    def cut(self, it, *args, **how):
+        record(self, it, *args, **how)
+        if it == 1:
+            raise KeyboardInterrupt
+    monkeypatch.setattr(dj.DistillJournal, "record", cut)
+    out, journal = tmp_path / "cut", tmp_path / "cut.partial"
+    with pytest.raises(KeyboardInterrupt):
+        dist.distill("startup", save_dir=out, **kw)
+    assert not out.exists() and json.loads((journal / "journal.json").read_text())["done"] == 2
+    monkeypatch.setattr(dj.DistillJournal, "record", record)
+    with pytest.raises(ValueError, match="holds the finished iterations of an unfinished distillation into"):
+        dist.distill("startup", save_dir=out, **kw)
+    with pytest.raises(ValueError, match=r"journal of another distillation \(epochs 1 there, 2 here\)"):
+        dist.distill("startup", save_dir=out, **{**kw, "epochs": 2}, resume=True)
+    iteration = dist._Run.iteration
+
+    def counted(self, it, *args):
+        ran.append(it)
+        return iteration(self, it, *args)
+    monkeypatch.setattr(dist._Run, "iteration", counted)
+    card = dist.distill("startup", save_dir=out, resume=True, **kw)
+    assert ran == [2] and not journal.exists()
+    for c in (card, whole):
+        assert c.pop("wall_time_s") >= 0 and c.pop("name") in ("cut", "whole")
+    assert card == whole
+    a, b = (PPO.load(d / "model.zip", device="cpu").policy.state_dict() for d in (out, tmp_path / "whole"))
+    assert all(np.array_equal(a[k].numpy(), b[k].numpy()) for k in a)
+    za, zb = (np.load(d / "vecnormalize.npz") for d in (out, tmp_path / "whole"))
+    assert all(np.array_equal(za[k], zb[k]) for k in za.files)
+
+    def first(self, it, *args):  # cut inside the first iteration: nothing is kept, so nothing is left
+        raise KeyboardInterrupt
+    monkeypatch.setattr(dist._Run, "iteration", first)
+    with pytest.raises(KeyboardInterrupt):
+        dist.distill("startup", save_dir=tmp_path / "early", **kw)
+    assert not (tmp_path / "early.partial").exists() and not (tmp_path / "early").exists()
+    with pytest.raises(ValueError, match="there is no journal"):
+        dist.distill("startup", save_dir=tmp_path / "early", resume=True, **kw)
+
+
 @pytest.mark.slow
 def test_distill_on_the_classical_preview_controller_learns_what_it_misses_from_its_command(tmp_path, monkeypatch):
     """`distill --on pid-pf-preview`: the student's environment runs pid-pf-preview's feedforward (its card holds the

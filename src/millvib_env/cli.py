@@ -264,10 +264,10 @@ def _cmd_distill(args) -> int:
     card = distill(args.task, teacher=args.teacher, baseline=args.baseline, seed=args.seed, iterations=args.iterations,
                    episodes=args.episodes, epochs=args.epochs, save_dir=args.save_dir, progress=not args.quiet,
                    net=tuple(args.net), range_v=args.range_v, history=tuple(args.history),
-                   loop_sample=args.loop_sample, command="millvib " + " ".join(sys.argv[1:]),
-                   preview_gauge=args.preview, on=args.on,
+                   loop_sample=args.loop_sample, preview_gauge=args.preview, on=args.on,
+                   command=" ".join(["millvib", *(a for a in sys.argv[1:] if a != "--resume")]),
                    validation_episodes=args.validation_episodes, budget=args.budget, filters=tuple(args.filters),
-                   validate_from=args.validate_from, batch=args.batch)
+                   validate_from=args.validate_from, batch=args.batch, resume=args.resume)
     print(json.dumps({k: card[k] for k in ("name", "task", "seed", "trained_by", "validation", "selected")}, indent=2))
     if Path(agents_dir()).resolve() in Path(args.save_dir).resolve().parents:
         print(f"updated {write_manifest()}")

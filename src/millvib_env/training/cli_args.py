@@ -70,6 +70,9 @@ def add_distill_args(p: argparse.ArgumentParser, func) -> None:
                    help="label with the teacher's command less this oracle's, from the same state (what the "
                         "preview adds), instead of less the digital PID's own command (default: the PID's)")
     p.add_argument("--seed", type=int, default=0, help="training seed, 0-49: its 100 training plants (default 0)")
+    p.add_argument("--resume", action="store_true",
+                   help="go on from the last iteration an unfinished run of the same options finished (its journal "
+                        "SAVE_DIR.partial, kept after each iteration)")
     p.add_argument("--iterations", type=int, default=4, help="DAgger iterations (default 4)")
     p.add_argument("--episodes", type=int, default=25,
                    help="training episodes per iteration, 1-100 (default 25): the seed's 100 training plants in "

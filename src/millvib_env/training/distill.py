@@ -42,6 +42,7 @@ from millvib_env.catalog.normalization import ObsStats
 from millvib_env.control.preview import DEFAULT_PREVIEW, preview_env_kwargs
 from millvib_env.envs.batch import EpisodeBatch
 from millvib_env.tasks import TRAIN_SEED_STRIDE, Task, takes_task
+from millvib_env.training.distill_journal import open_distill_journal
 from millvib_env.training.train import N_VALIDATION, validation_result
 
 __all__ = ["distill", "DEFAULT_PREVIEW", "DEFAULT_HISTORY", "DEFAULT_LOOP_SAMPLE", "student_env_kwargs"]
@@ -201,7 +202,8 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
             net: tuple = (256, 256), range_v: float = 100.0, history=DEFAULT_HISTORY,
             loop_sample: str = DEFAULT_LOOP_SAMPLE, progress: bool = True, command: str | None = None,
             validation_episodes: int = N_VALIDATION, preview_gauge: str = "measured", on: str | None = None,
-            budget: str = "iteration", filters=(), validate_from: int = 1, batch: int = 1024) -> dict:
+            budget: str = "iteration", filters=(), validate_from: int = 1, batch: int = 1024,
+            resume: bool = False) -> dict:
     """Teach a residual valve policy by `teacher` on `task` (module docstring); write the agent folder
     `save_dir` (model.zip, vecnormalize.npz, card.json) and return its card. Each iteration's student is scored
     on the first `validation_episodes` of the task's validation plants (default 40, as the shipped agents'). The
@@ -222,7 +224,11 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     the varied mill: docs/performance.md ("The distillation's fit budget"). `batch`: the fit's batch of samples.
 
     `validate_from`: the students of iterations `validate_from`.. are scored and the best of them is shipped; the
-    earlier ones are not candidates (in every student shipped so far the best came at iteration 11 or later)."""
+    earlier ones are not candidates (in every student shipped so far the best came at iteration 11 or later).
+
+    The run keeps its work after each iteration in a journal beside `save_dir` (`training.distill_journal`:
+    `save_dir` with `.partial` added); `resume` goes on from the last iteration an unfinished run of the same
+    options finished there, to the same agent."""
     assert isinstance(task, Task)  # a name was resolved by @takes_task
     t = task
     seed = integer("seed", seed, lo=0, hi=49)
@@ -246,23 +252,43 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
                _card_maker(t, kwargs, seed, teacher, episodes, epochs, command, baseline, on, budget, batch),
                load_controller(teacher, t, version="v1"),
                None if baseline is None else load_controller(baseline, t, version="v1"))
+    identity = {"task": t.name, "teacher": teacher, "baseline": baseline, "on": on, "seed": seed,
+                "iterations": iterations, "episodes": episodes, "epochs": epochs, "budget": budget, "batch": batch,
+                "net": layers, "validation_episodes": validation_episodes, "validate_from": validate_from,
+                "env_kwargs": kwargs}
+    journal = open_distill_journal(save_dir, json.loads(json.dumps(identity)), iterations, resume)
+    run.validate_from, run.batch, run.iterations = validate_from, batch, iterations
+    try:
+        card = _iterate(run, journal, kwargs, layers, progress, teacher, save_dir)
+    except BaseException:
+        journal.abandon()
+        raise
+    journal.close()
+    return card
+
+
+def _iterate(run: "_Run", journal, kwargs: dict, layers: list[int], progress: bool, teacher: str, save_dir) -> dict:
+    """The run's iterations from the journal's last finished one, each kept in the journal but the last; the best
+    student written as the agent folder `save_dir`. Returns its card."""
+    import shutil
+
+    iterations = run.iterations
     model, bar = run.start(kwargs, layers, iterations, progress, teacher)
     start = time.time()
-    import tempfile
-
-    work = Path(tempfile.mkdtemp(prefix="millvib-distill-"))
-    run.validate_from, run.batch, run.iterations = validate_from, batch, iterations
-    for it in range(iterations):
-        run.iteration(it, model, kwargs, work, bar)
+    if journal.done:
+        run.restore(journal, model, bar)
+        start -= journal.wall_time_s
+    for it in range(journal.done, iterations):
+        X, Y = run.iteration(it, model, kwargs, journal.path, bar)
+        if it + 1 < iterations:  # the last one's work goes into the agent folder itself
+            journal.record(it, X, Y, model.policy, run.history, None if run.best is None else run.best[2],
+                           time.time() - start)
     if bar is not None:
         bar.close()
     card = run.final_card(save_dir, start)
-    import shutil
-
     with atomic_folder(Path(save_dir)) as tmp:
         for name in ("model.zip", "vecnormalize.npz", "card.json"):
             shutil.copyfile(run.best[0] / name, tmp / name)
-    shutil.rmtree(work, ignore_errors=True)
     return card
 
 
@@ -326,7 +352,7 @@ class _Run:
                        desc=f"distill {teacher} on {self.t.name}")
         return model, bar
 
-    def iteration(self, it: int, model, kwargs: dict, work: Path, bar) -> None:
+    def iteration(self, it: int, model, kwargs: dict, work: Path, bar) -> tuple[np.ndarray, np.ndarray]:
         """DAgger's iteration `it`: roll the student out (labels by the teacher), pool, refit, validate."""
         t, episodes = self.t, self.episodes
         # the seed's training plants in turn; past its 100, they come round again (the same plant and disturbances,
@@ -350,7 +376,7 @@ class _Run:
         if it + 1 < self.validate_from:  # not a candidate: its fit is recorded, not its score
             self.history.append({"iteration": it + 1, "samples": int(len(Yc)), "fit_mse": mse})
             _say(bar, f"iteration {it + 1}: fitted (students are scored from iteration {self.validate_from} on)")
-            return
+            return X, Y
         folder = work / f"it{it + 1}"
         _write_agent(folder, model, stats, {})
         val_first = t.seeds["validation"].start
@@ -362,6 +388,28 @@ class _Run:
             self.best = (folder, val, it + 1)
         _say(bar, f"iteration {it + 1}: cost {val['cost_mean']:.4g}; best {self.best[1]['cost_mean']:.4g} "
                   f"(iteration {self.best[2]})")
+        return X, Y
+
+    def restore(self, journal, model, bar) -> None:
+        """The run as it stood after the journal's last finished iteration: the pool rebuilt from its samples in
+        order, the student's weights, the statistics of the pool, the iterations' records and the best so far."""
+        for X, Y in journal.samples():
+            if self.pool is None:
+                self.pool = _Pool(len(X) * self.iterations)
+            self.pool.add(X, Y)
+        assert self.pool is not None  # a journal keeps at least one iteration
+        journal.load_weights(model.policy)
+        self.stats = self.pool.stats()
+        policy = model.policy
+        self.student = lambda x, p=policy: p.action_net(p.mlp_extractor.policy_net(x))
+        self.history = list(journal.history)
+        if journal.best is not None:
+            record = self.history[journal.best - 1]
+            val = {k: v for k, v in record.items() if k not in ("iteration", "samples", "fit_mse")}
+            self.best = (journal.path / f"it{journal.best}", val, journal.best)
+        if bar is not None:  # the finished iterations' rollouts
+            bar.update(journal.done * (bar.total // self.iterations))
+        _say(bar, f"iteration {journal.done}: resumed from {journal.path}")
 
     def final_card(self, save_dir, start: float) -> dict:
         """The best iteration's card, written into its folder: its validation, every iteration's, the run's time."""
