@@ -584,6 +584,24 @@ def test_a_set_point_outside_the_cylinders_stroke_is_refused_in_one_line(capsys)
         simulate(MillParams(), PIDGains(1e5, 1e-3), 0.02, xd=-0.2)
 
 
+@pytest.mark.parametrize("override", ["k1=1e30", "FL=1e300", "ps=1e-30", "pb=1e30", "fs=1e30"])
+def test_parameters_whose_forces_float64_cannot_add_are_refused_in_one_line(override, capsys):
+    """A pressure's force lost beside another at float64's resolution leaves no chamber pressure that holds the mill
+    still: the start is refused in one line naming the forces (it was a ZeroDivisionError's traceback), in the CLI
+    (exit 2), the API and an environment's settled start."""
+    from millvib_env.params import PAPER_GAINS, parse_overrides
+    from millvib_env.plant.integrate import simulate
+    from millvib_env.plant.model import settled_state
+
+    line = _one_line_refusal(["simulate", "--set", override, "--t-end", "0.01"], capsys)
+    assert "no chamber pressure holds the mill still" in line and "ps Ap = " in line, line
+    params = MillParams().replace(**parse_overrides([override]))
+    with pytest.raises(ValueError, match="no chamber pressure holds the mill still"):
+        simulate(params, PAPER_GAINS, 0.01)
+    with pytest.raises(ValueError, match="no chamber pressure holds the mill still"):
+        settled_state(params, xd=1e-3, z=params.fs / params.sigma0)  # out of the stroke's middle, bristles loaded
+
+
 def test_complex_observation_statistics_are_refused_naming_the_field(tmp_path):
     """A vecnormalize.npz whose mean is complex was cast to its real part in silence."""
     from millvib_env.catalog.normalization import load_obs_stats

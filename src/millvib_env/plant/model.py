@@ -385,7 +385,8 @@ def rated_flow(params: MillParams) -> float:
 def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.0) -> float:
     """Chamber pressure pL that gives zero acceleration in state y (Eq. 8 is linear in pL).
 
-    Solved with `plant_rhs` itself (two evaluations), so the force balance is written only once.
+    Solved with `plant_rhs` itself (two evaluations), so the force balance is written only once. NaN where no
+    pressure does it at float64's resolution (`held_pressure` says so in one line).
     """
     dy, aux = np.empty(NY), np.empty(NAUX)
     ya, yb = y.copy(), y.copy()
@@ -393,7 +394,21 @@ def balanced_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray, t: float = 0.
     plant_rhs(t, ya, p, c, dy, aux)
     acc_a = dy[IV]
     plant_rhs(t, yb, p, c, dy, aux)
-    return -acc_a * p[P_PS] / (dy[IV] - acc_a)
+    den = dy[IV] - acc_a
+    return -acc_a * p[P_PS] / den if den != 0.0 else math.nan
+
+
+def held_pressure(y: np.ndarray, p: np.ndarray, c: np.ndarray) -> float:
+    """`balanced_pressure`, or a ValueError of one line where no chamber pressure holds the mill still at float64's
+    resolution: the pressure's force lost beside the others, parameters of no mill (k1 = 1e30, FL = 1e30, ps =
+    1e-30 Pa)."""
+    pl = balanced_pressure(y, p, c)
+    if not math.isfinite(pl):
+        raise ValueError(f"no chamber pressure holds the mill still at x = {y[IX]:.4g} m: the pressure's force "
+                         f"(ps Ap = {p[P_PS] * p[P_AP]:.3g} N) is lost beside the others (k1 x = "
+                         f"{p[P_K1] * y[IX]:.3g}, FL = {p[P_FL] + c[C_DFL]:.3g}, pb Ab = {p[P_PB] * p[P_AB]:.3g}, "
+                         f"fs = {p[P_FS]:.3g} N); allowed: parameters whose forces float64 can add")
+    return pl
 
 
 def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> np.ndarray:
@@ -406,7 +421,7 @@ def initial_state(params: MillParams, x0: float = 1.0e-3, uI0: float = 0.0) -> n
     y0[IX] = x0
     y0[IZ] = params.fs / params.sigma0
     y0[IUI] = uI0
-    y0[IPL] = balanced_pressure(y0, pack(params), np.zeros(NC))
+    y0[IPL] = held_pressure(y0, pack(params), np.zeros(NC))
     return y0
 
 
@@ -434,7 +449,7 @@ def settled_state(params: MillParams, xd: float = 0.0, dFL: float = 0.0, z: floa
     y = np.zeros(NY)
     y[IX] = xd
     y[IZ] = z
-    y[IPL] = balanced_pressure(y, p, c)
+    y[IPL] = held_pressure(y, p, c)
     dy, aux = np.empty(NY), np.empty(NAUX)
     plant_rhs(0.0, y, p, c, dy, aux)
     leak_rate = dy[IPL]  # uI = 0: only the leak acts
