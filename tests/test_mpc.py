@@ -387,6 +387,27 @@ def test_distill_scores_the_students_from_the_iteration_asked_and_fits_in_the_ba
         dist.distill("startup", iterations=2, validate_from=3, save_dir=tmp_path / "b", progress=False)
 
 
+def test_a_distilled_student_does_not_depend_on_torchs_thread_count(tmp_path):
+    """The same distillation started with torch on two threads and on one gives the same network to the bit: how a
+    product is split over threads rounds its sums (the orthogonal initialisation's QR, the fit's products), and the
+    number of threads torch starts with is the machine's core count."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from millvib_env.training.distill import distill
+
+    before = torch.get_num_threads()
+    kw = dict(iterations=1, episodes=1, epochs=1, progress=False, validation_episodes=1, net=(256, 256))
+    try:
+        for n in (2, 1):
+            torch.set_num_threads(n)
+            distill("startup", save_dir=tmp_path / f"threads-{n}", **kw)
+    finally:
+        torch.set_num_threads(before)
+    a, b = (PPO.load(tmp_path / f"threads-{n}" / "model.zip", device="cpu").policy.state_dict() for n in (2, 1))
+    assert [k for k in a if not torch.equal(a[k], b[k])] == []
+
+
 def test_an_interrupted_distillation_goes_on_from_its_last_finished_iteration_to_the_same_agent(tmp_path, monkeypatch):
     """A distillation cut after its second of three iterations keeps them in its journal (SAVE_DIR.partial) and
     writes no agent; the same call refuses to start over the journal, another run's options cannot resume it, and

@@ -61,7 +61,7 @@ def one_torch_thread() -> None:
     against 2.9-3.5 s with torch's default two threads here. How a product is split over threads can round its
     float32 sums differently: the rolling rows were the same bit for bit, the startup student's on 6 plants moved
     by 2e-6 relative. Torch's default is the core count, so one thread also makes an agent's actions independent
-    of the machine's cores. Training sets one thread itself (`training.train`)."""
+    of the machine's cores. Training sets one thread itself (`training.train`, `distill`, `finetune`)."""
     if "OMP_NUM_THREADS" in os.environ:
         return
     import torch

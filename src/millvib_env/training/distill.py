@@ -240,6 +240,7 @@ def distill(task: str | Task = "rolling", *, teacher: str = "mpc-preview", basel
     batch = integer("batch", batch, lo=1, hi=1 << 20)
     import torch
 
+    torch.set_num_threads(1)  # as `train` and `finetune`: the student does not depend on the machine's core count
     torch.manual_seed(seed)
     if budget not in ("pool", "iteration"):
         raise ValueError(f"budget = {budget!r} is invalid: 'pool' or 'iteration'")
