@@ -208,3 +208,17 @@ def test_an_interrupted_tune_keeps_its_finished_entries_and_resume_goes_on_to_th
     journal.unlink()
     assert cli_main([*command, "--resume"]) == 2
     assert "there is no journal" in capsys.readouterr().err
+
+
+def test_the_preview_feedforwards_search_is_the_same_in_one_process_and_in_two():
+    """`tune_preview(processes=2)` (`millvib tune --jobs 2`) splits each batch of gain sets between two worker
+    processes; every gain set's episodes are the same in any batch, so the search takes the same steps to the same
+    gains, and the gains beat the reference alone on their plants."""
+    from millvib_env.tasks import get_task
+    from millvib_env.tuning.search import tune_preview
+
+    t = get_task("startup")
+    seeds = list(t.seeds["tuning"])[:2]
+    one, two = (tune_preview(seeds, task=t, iters=2, processes=n) for n in (1, 2))
+    assert one == two, (one, two)
+    assert one["tuning_cost"] < one["reference_cost"] and one["n_evaluations"] >= 2 * 18

@@ -460,8 +460,8 @@ def _add_tune(sub) -> None:
                    help="take pid-oracle, lqr-oracle and pid-pf-oracle from this task instead of tuning them")
     p.add_argument("--grid", type=int, default=5, help="oracle grid points per axis (default 5)")
     p.add_argument("--jobs", type=int, default=1,
-                   help="worker processes for the oracle tables' grid plants (pid-oracle, pid-pf-oracle; default 1); "
-                        "each plant is tuned on its own, so the tables are the same for any number")
+                   help="worker processes for the oracle tables' grid plants (pid-oracle, pid-pf-oracle) and "
+                        "pid-pf-preview's batches of gain sets (default 1); the results are the same for any number")
     p.add_argument("--env-version", default="v1", choices=["v0", "v1"],
                    help="the loop the gains are tuned on: v1, the loop as commissioned (default; written to "
                         "configs/control/v1/<task>.yaml), or v0, the paper's analog loop (configs/control/<task>.yaml)")

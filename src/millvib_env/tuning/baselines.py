@@ -232,7 +232,7 @@ def _tune_preview(r: _Run) -> dict:
     if r.version == "v0":
         raise ValueError("pid-pf-preview runs on the loop as commissioned: tune it with --env-version v1")
     r.say("tuning pid-pf-preview (pid-pf-robust + the preview's feedforward, 17 gains) over 32 tuning plants ...")
-    res = tuning.tune_preview(r.seeds["robust"], task=r.t, progress=r.bar("pid-pf-preview"))
+    res = tuning.tune_preview(r.seeds["robust"], task=r.t, progress=r.bar("pid-pf-preview"), processes=r.jobs)
     r.say(f"  cost {res['tuning_cost']:.4f} (pid-pf-robust alone {res['reference_cost']:.4f})")
     base = r.current("pid-pf-robust").get("from_task") or r.t.name
     return {**res, "gauge": tuning.PREVIEW_TUNING_GAUGE, "seeds": [r.seeds["robust"][0], r.seeds["robust"][-1]],
@@ -287,7 +287,8 @@ def tune_task(task: str | Task, only: list[str] | None = None, *, from_task: str
     """Tune the entries `only` (default: every entry) of `task`; returns {entry: its config}. Entries
     that build on another (pid-pf-ff on pid-pf-robust, pid-adaptive on pid-oracle) take it from this
     run or else from `shipped` (the task's control config). `jobs`: worker processes for the oracle tables'
-    grid plants (`distributed.run_jobs`; the same tables for any number). `done`: entries an earlier, unfinished
+    grid plants and pid-pf-preview's batches of gain sets (`distributed.run_jobs`; the same results for any
+    number). `done`: entries an earlier, unfinished
     run of the same call tuned (`tuning.journal`), taken as this run's and not tuned again; `on_entry(name, entry)`
     is called as each entry is finished (the journal is written there)."""
     jobs = integer("jobs", jobs, lo=1, hi=1024)

@@ -390,6 +390,19 @@ def preview_costs(gain_sets: np.ndarray, seeds: Sequence[int], *, task: Task, ga
     return costs.mean(axis=1)
 
 
+def _preview_costs_in(processes: int, gain_sets: np.ndarray, seeds: Sequence[int], task: Task,
+                      gauge: str | dict) -> np.ndarray:
+    """`preview_costs` of the rows of `gain_sets`, split into `processes` runs of consecutive rows in worker processes
+    (one process: here)."""
+    if processes <= 1:
+        return preview_costs(gain_sets, seeds, task=task, gauge=gauge)
+    from millvib_env.distributed import run_jobs
+
+    parts = np.array_split(np.atleast_2d(gain_sets), min(processes, len(gain_sets)))
+    jobs = [{"gain_sets": part, "seeds": list(seeds), "task": task, "gauge": gauge} for part in parts]
+    return np.concatenate(run_jobs(preview_costs, jobs, processes=processes))
+
+
 def _pair_costs(gains: np.ndarray, seeds: Sequence[int], task: Task, gauge: str | dict, chunk: int,
                 params: Sequence[dict | None] | None = None) -> np.ndarray:
     """Episode cost of environment j: gain row j on plant seeds[j] (with the plant parameters params[j] where
@@ -528,11 +541,13 @@ def tune_preview_per_plant(seeds: Sequence[int], *, task: Task, start: Sequence[
 
 
 def tune_preview(seeds: Sequence[int], *, task: Task, gauge: str | dict = PREVIEW_TUNING_GAUGE, iters: int = 30,
-                 fd_step: float = 0.02, bound: float = 100.0, progress: str | None = None) -> dict:
+                 fd_step: float = 0.02, bound: float = 100.0, progress: str | None = None,
+                 processes: int = 1) -> dict:
     """The preview feedforward's gains (`control.preview`) minimising the mean cost over the plants `seeds`: L-BFGS-B
     from zero (the reference alone) within +-`bound` (tuner's units), each gradient by forward differences of
-    `fd_step`, the point and its 17 neighbours run in one batch. Returns the gains, their cost, the reference's
-    cost on the same plants and the number of gain sets evaluated."""
+    `fd_step`, the point and its 17 neighbours run in one batch, or split among `processes` worker processes
+    (`distributed.run_jobs`; each gain set's episodes are the same in any batch, so the search is the same). Returns
+    the gains, their cost, the reference's cost on the same plants and the number of gain sets evaluated."""
     from tqdm.auto import tqdm
 
     dim = len(FF_CHANNELS)
@@ -543,7 +558,7 @@ def tune_preview(seeds: Sequence[int], *, task: Task, gauge: str | dict = PREVIE
     def cost_and_grad(x: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal n_eval, best_cost, best_x
         pts = np.vstack([x, x + fd_step * np.eye(dim)])
-        c = preview_costs(pts, seeds, task=task, gauge=gauge)
+        c = _preview_costs_in(processes, pts, seeds, task, gauge)
         n_eval += len(pts)
         bar.update(len(pts))
         if c[0] < best_cost:
