@@ -29,6 +29,7 @@ from millvib_env.control.policies import LQRPolicy
 from millvib_env.catalog.named import named_gains
 from millvib_env.control.preview import FF_CHANNELS, PreviewFeedforward
 from millvib_env.catalog.registry import REFERENCE
+from millvib_env.distributed import run_jobs
 from millvib_env.envs.actions import WIDE_BOUNDS, GainMap, wide_actions
 from millvib_env.envs.batch import EpisodeBatch, env_id_for
 from millvib_env.envs.config import load_env_config
@@ -396,8 +397,6 @@ def _preview_costs_in(processes: int, gain_sets: np.ndarray, seeds: Sequence[int
     (one process: here)."""
     if processes <= 1:
         return preview_costs(gain_sets, seeds, task=task, gauge=gauge)
-    from millvib_env.distributed import run_jobs
-
     parts = np.array_split(np.atleast_2d(gain_sets), min(processes, len(gain_sets)))
     jobs = [{"gain_sets": part, "seeds": list(seeds), "task": task, "gauge": gauge} for part in parts]
     return np.concatenate(run_jobs(preview_costs, jobs, processes=processes))
